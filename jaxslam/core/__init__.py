@@ -1,0 +1,34 @@
+"""Pure math on batched arrays: sigma points, square-root factors, resampling, SE(2),
+Gaussian log-densities. No SLAM vocabulary here."""
+
+from jaxslam.core import gaussian, resampling, se2, sigma, sqrt
+from jaxslam.core.gaussian import chol_logdet, log_pdf, mahalanobis_sq, safe_cholesky
+from jaxslam.core.resampling import (
+    effective_sample_size,
+    get_resampler,
+    multinomial,
+    normalize_log_weights,
+    residual,
+    selective_resample,
+    stratified,
+    systematic,
+)
+from jaxslam.core.sigma import UTParams, UTResult, sigma_points, unscented_transform, ut_moments, ut_weights
+from jaxslam.core.sqrt import (
+    chol_update,
+    chol_update_checked,
+    chol_update_many,
+    chol_update_many_checked,
+    sqrt_ut_moments,
+    tria,
+)
+
+__all__ = [
+    "gaussian", "resampling", "se2", "sigma", "sqrt",
+    "chol_logdet", "log_pdf", "mahalanobis_sq", "safe_cholesky",
+    "effective_sample_size", "get_resampler", "multinomial", "normalize_log_weights",
+    "residual", "selective_resample", "stratified", "systematic",
+    "UTParams", "UTResult", "sigma_points", "unscented_transform", "ut_moments", "ut_weights",
+    "chol_update", "chol_update_checked", "chol_update_many", "chol_update_many_checked",
+    "sqrt_ut_moments", "tria",
+]

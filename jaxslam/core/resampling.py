@@ -1,0 +1,152 @@
+r"""Resampling from log-weights, effective sample size and selective resampling.
+
+All resamplers take ``(key, log_weights)`` with ``log_weights`` of shape ``(N,)``
+(unnormalised is fine) and return ancestor indices ``(num,)`` (``num`` defaults to
+``N``) in ``[0, N)``:
+
+* multinomial: ``num`` i.i.d. draws from the categorical distribution;
+* stratified: one uniform draw in each stratum ``[(i + u_i) / num]``;
+* systematic: a single uniform offset, ``(i + u) / num``;
+* residual: ``floor(num w_i)`` deterministic copies, the remaining draws multinomial
+  on the residual weights (Liu & Chen 1998).
+
+All are unbiased: the expected number of copies of particle ``i`` is ``num w_i``.
+Cumulative sums are normalised by their last element and indices clipped, so a
+float32 cumulative sum ending below 1 never indexes out of range.
+
+Weight trouble is handled by design: NaN log-weights count as ``-inf``; if every
+weight underflows (all ``-inf``) the weights are taken as uniform rather than NaN.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+from jax.scipy.special import logsumexp
+
+Resampler = Callable[[Array, Array], Array]
+
+
+def normalize_log_weights(log_weights: Array) -> Array:
+    """Log-weights that sum to one in linear space (uniform if all underflow or NaN)."""
+    clean = jnp.where(jnp.isnan(log_weights), -jnp.inf, log_weights)
+    total = logsumexp(clean)
+    degenerate = ~jnp.isfinite(total)
+    n = log_weights.shape[-1]
+    uniform = jnp.full_like(clean, -jnp.log(jnp.asarray(n, clean.dtype)))
+    safe_total = jnp.where(degenerate, 0.0, total)
+    return jnp.where(degenerate, uniform, clean - safe_total)
+
+
+def effective_sample_size(log_weights: Array) -> Array:
+    """``1 / sum(w_i^2)`` of the normalised weights, computed in log space."""
+    normalized = normalize_log_weights(log_weights)
+    return jnp.exp(-logsumexp(2.0 * normalized))
+
+
+def _cdf(log_weights: Array) -> Array:
+    weights = jnp.exp(normalize_log_weights(log_weights))
+    cdf = jnp.cumsum(weights)
+    return cdf / cdf[-1]
+
+
+def _invert_cdf(cdf: Array, positions: Array) -> Array:
+    idx = jnp.searchsorted(cdf, positions, side="right")
+    return jnp.clip(idx, 0, cdf.shape[0] - 1).astype(jnp.int32)
+
+
+def systematic(key: Array, log_weights: Array, num: int | None = None) -> Array:
+    """Systematic resampling: one uniform offset for all ``num`` positions."""
+    num = log_weights.shape[0] if num is None else num
+    dtype = jnp.result_type(log_weights.dtype, float)
+    offset = jax.random.uniform(key, (), dtype)
+    positions = (jnp.arange(num, dtype=dtype) + offset) / num
+    return _invert_cdf(_cdf(log_weights), positions)
+
+
+def stratified(key: Array, log_weights: Array, num: int | None = None) -> Array:
+    """Stratified resampling: one uniform draw per stratum."""
+    num = log_weights.shape[0] if num is None else num
+    dtype = jnp.result_type(log_weights.dtype, float)
+    offsets = jax.random.uniform(key, (num,), dtype)
+    positions = (jnp.arange(num, dtype=dtype) + offsets) / num
+    return _invert_cdf(_cdf(log_weights), positions)
+
+
+def multinomial(key: Array, log_weights: Array, num: int | None = None) -> Array:
+    """Multinomial resampling: ``num`` independent categorical draws."""
+    num = log_weights.shape[0] if num is None else num
+    dtype = jnp.result_type(log_weights.dtype, float)
+    positions = jax.random.uniform(key, (num,), dtype)
+    return _invert_cdf(_cdf(log_weights), positions)
+
+
+def residual(key: Array, log_weights: Array, num: int | None = None) -> Array:
+    """Residual resampling: deterministic ``floor(num w)`` copies, the rest multinomial."""
+    num = log_weights.shape[0] if num is None else num
+    dtype = jnp.result_type(log_weights.dtype, float)
+    weights = jnp.exp(normalize_log_weights(log_weights))
+    scaled = num * weights
+    counts = jnp.floor(scaled).astype(jnp.int32)
+    counts_cdf = jnp.cumsum(counts)
+    slots = jnp.arange(num)
+    deterministic = jnp.searchsorted(counts_cdf, slots, side="right").astype(jnp.int32)
+    leftover = jnp.maximum(scaled - counts, 0.0).astype(dtype)
+    # If rounding left no residual mass, fall back to the weights themselves.
+    leftover_log = jnp.where(jnp.sum(leftover) > 0, jnp.log(leftover), jnp.log(weights))
+    extra = multinomial(key, leftover_log, num)
+    return jnp.where(slots < counts_cdf[-1], deterministic, extra).astype(jnp.int32)
+
+
+RESAMPLERS: dict[str, Resampler] = {
+    "systematic": systematic,
+    "stratified": stratified,
+    "multinomial": multinomial,
+    "residual": residual,
+}
+
+
+def get_resampler(method: str | Resampler) -> Resampler:
+    """A resampler by name (``systematic``, ``stratified``, ``multinomial``, ``residual``)."""
+    if callable(method):
+        return method
+    try:
+        return RESAMPLERS[method]
+    except KeyError:
+        raise ValueError(
+            f"unknown resampler {method!r}; choose one of {sorted(RESAMPLERS)}"
+        ) from None
+
+
+def selective_resample(
+    key: Array,
+    log_weights: Array,
+    threshold: Array | float = 0.5,
+    method: str | Resampler = "systematic",
+) -> tuple[Array, Array, Array]:
+    """Resample only when ``ESS < threshold * N`` (Grisetti et al. 2005).
+
+    Args:
+        key: PRNG key.
+        log_weights: ``(N,)``.
+        threshold: traced ratio of ``N``; 1.0+ always resamples, 0 never.
+        method: resampler name or function (static).
+
+    Returns:
+        ``(ancestors (N,), resampled (), new_log_weights (N,))``: identity ancestors
+        and the normalised weights when no resampling happened, uniform weights when
+        it did. Callers holding large per-particle buffers should gather them under
+        ``lax.cond(resampled, ...)``.
+    """
+    n = log_weights.shape[0]
+    normalized = normalize_log_weights(log_weights)
+    ess = effective_sample_size(normalized)
+    resampled = ess < threshold * n
+    drawn = get_resampler(method)(key, normalized)
+    ancestors = jnp.where(resampled, drawn, jnp.arange(n, dtype=jnp.int32))
+    uniform = jnp.full_like(normalized, -jnp.log(jnp.asarray(n, normalized.dtype)))
+    new_log_weights = jnp.where(resampled, uniform, normalized)
+    return ancestors, resampled, new_log_weights
