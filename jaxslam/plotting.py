@@ -1,0 +1,114 @@
+"""Figures with matplotlib (no display needed). The core never imports this module.
+
+Every function takes NumPy-convertible arrays and returns the ``Figure``; ``save``
+writes it as PNG and closes it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.patches import Ellipse  # noqa: E402
+
+
+def save(fig, path: str | Path, dpi: int = 130) -> Path:
+    """Save ``fig`` as PNG and close it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def covariance_ellipse(mean, cov, n_sigma: float = 3.0, **kwargs) -> Ellipse:
+    """The ``n_sigma`` ellipse of a 2-D Gaussian as a matplotlib patch."""
+    cov = np.asarray(cov, float)
+    cov = 0.5 * (cov + cov.T)
+    evals, evecs = np.linalg.eigh(cov)
+    evals = np.clip(evals, 0.0, None)
+    angle = np.degrees(np.arctan2(evecs[1, 1], evecs[0, 1]))
+    width, height = 2 * n_sigma * np.sqrt(evals[1]), 2 * n_sigma * np.sqrt(evals[0])
+    kwargs.setdefault("fill", False)
+    return Ellipse(xy=np.asarray(mean, float), width=width, height=height, angle=angle, **kwargs)
+
+
+def plot_landmark_slam(
+    trajectory,
+    landmark_means=None,
+    landmark_covs=None,
+    reference_xy=None,
+    reference_label: str = "GPS",
+    true_landmarks=None,
+    title: str = "",
+    n_sigma: float = 3.0,
+):
+    """Estimated path, a reference path (GPS or ground truth), landmarks with ellipses."""
+    trajectory = np.asarray(trajectory)
+    fig, ax = plt.subplots(figsize=(8, 8))
+    if reference_xy is not None and len(reference_xy):
+        ref = np.asarray(reference_xy)
+        ax.plot(ref[:, 0], ref[:, 1], ".", ms=2, color="tab:blue", alpha=0.6, label=reference_label)
+    if true_landmarks is not None and len(true_landmarks):
+        tl = np.asarray(true_landmarks)
+        ax.plot(tl[:, 0], tl[:, 1], "k+", ms=5, alpha=0.6, label="true landmarks")
+    ax.plot(trajectory[:, 0], trajectory[:, 1], "-", color="tab:red", lw=1.0, label="estimate")
+    if landmark_means is not None and len(landmark_means):
+        lm = np.asarray(landmark_means)
+        ax.plot(lm[:, 0], lm[:, 1], "x", color="tab:red", ms=3, label="landmarks")
+        if landmark_covs is not None:
+            for mean, cov in zip(lm, np.asarray(landmark_covs)):
+                ax.add_patch(covariance_ellipse(mean, cov, n_sigma, color="k", lw=0.5, alpha=0.7))
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(title or f"trajectory and landmarks ({n_sigma:g}-sigma ellipses)")
+    return fig
+
+
+def plot_grid_map(log_odds, resolution: float, origin, trajectory=None, title: str = ""):
+    """An occupancy map (log-odds, rows = y) with the trajectory over it."""
+    log_odds = np.asarray(log_odds, float)
+    prob = 1.0 / (1.0 + np.exp(-log_odds))
+    h, w = prob.shape
+    extent = [origin[0], origin[0] + w * resolution, origin[1], origin[1] + h * resolution]
+    fig, ax = plt.subplots(figsize=(8, 8 * h / max(w, 1) + 0.5))
+    ax.imshow(1.0 - prob, cmap="gray", origin="lower", extent=extent, vmin=0, vmax=1)
+    if trajectory is not None:
+        traj = np.asarray(trajectory)
+        ax.plot(traj[:, 0], traj[:, 1], "-", color="tab:red", lw=0.8, label="trajectory")
+        ax.legend(loc="best", fontsize=8)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title or "occupancy map")
+    return fig
+
+
+def plot_filter_health(ess, resampled, particles: int, weight_variance=None, title: str = ""):
+    """Effective sample size (and weight variance) over steps, resampling steps marked."""
+    ess = np.asarray(ess, float)
+    resampled = np.asarray(resampled, bool)
+    steps = np.arange(len(ess))
+    rows = 2 if weight_variance is not None else 1
+    fig, axes = plt.subplots(rows, 1, figsize=(9, 2.8 * rows), sharex=True, squeeze=False)
+    ax = axes[0, 0]
+    ax.plot(steps, ess, lw=0.8, label="ESS")
+    ax.axhline(particles, color="gray", lw=0.5, ls=":")
+    if resampled.any():
+        ax.plot(steps[resampled], ess[resampled], "v", color="tab:red", ms=3,
+                label=f"resampled ({int(resampled.sum())})")
+    ax.set_ylabel("ESS")
+    ax.set_ylim(0, particles * 1.05)
+    ax.legend(loc="best", fontsize=8)
+    if weight_variance is not None:
+        axes[1, 0].semilogy(steps, np.maximum(np.asarray(weight_variance, float), 1e-300), lw=0.8)
+        axes[1, 0].set_ylabel("weight variance")
+    axes[-1, 0].set_xlabel("step")
+    axes[0, 0].set_title(title or "filter health")
+    return fig

@@ -1,0 +1,378 @@
+"""What ``jaxslam run`` / ``evaluate`` / ``plot`` do, as functions a script can call.
+
+``run(...)`` resolves a dataset (a name, a path to a CARMEN log, or a built-in
+simulator), runs the chosen filter, scores it where a reference exists (GPS for
+Victoria Park, relations for the CARMEN benchmark logs, ground truth for the
+simulators) and writes an output folder:
+
+* ``summary.json`` — what was run (algorithm, dataset, particles, seed, steps, ...),
+  timings (``wall_s`` after compilation, ``compile_s`` apart), resamplings, scores;
+* ``trajectory.tum`` — the estimate in the TUM format;
+* landmark runs: ``landmarks.csv`` (id, x, y, covariance) and ``trajectory.png``
+  (trajectory, reference, landmarks with 3-sigma ellipses);
+* grid runs: ``map.pgm`` + ``map.yaml`` (ROS map_server convention) and ``map.png``;
+* ``health.png`` — ESS and resampling over time; ``arrays.npz`` — the data the
+  figures are drawn from, so ``jaxslam plot`` can redraw them.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
+from jaxslam.datasets.registry import DatasetInfo, lookup
+
+LANDMARK_ALGORITHMS = ("erb-upf", "rb-upf")
+GRID_ALGORITHMS = ("srupf-gm", "srupf-gm-npc", "gmapping")
+DEFAULT_ALGORITHM = {"landmark": "erb-upf", "laser": "srupf-gm"}
+DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
+
+
+class RunError(ValueError):
+    """A user-facing problem with a run's arguments (the CLI exits with status 2)."""
+
+
+def _kind_of(algorithm: str) -> str:
+    return "landmark" if algorithm in LANDMARK_ALGORITHMS else "laser"
+
+
+def resolve_dataset(dataset: str | None, algorithm: str | None) -> tuple[DatasetInfo | None, Path | None, str]:
+    """``(info, path, kind)`` for a dataset name, a path to a CARMEN log, or None."""
+    if dataset is None:
+        kind = _kind_of(algorithm) if algorithm else "landmark"
+        return lookup("sim-landmarks" if kind == "landmark" else "sim-laser"), None, kind
+    candidate = Path(dataset).expanduser()
+    if candidate.suffix in {".clf", ".log", ".gz", ".carmen"} or candidate.exists():
+        if not candidate.exists():
+            raise DatasetNotFoundError(f"CARMEN log {str(candidate)!r} does not exist")
+        return None, candidate, "laser"
+    try:
+        info = lookup(dataset)
+    except KeyError as err:
+        raise RunError(err.args[0]) from None
+    return info, None, info.kind
+
+
+def _json_default(value):
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def write_json(path: Path, payload: dict) -> None:
+    """Write JSON atomically (temporary file, then rename)."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=_json_default) + "\n")
+    tmp.replace(path)
+
+
+def _overrides_dict(overrides) -> dict[str, float]:
+    return {name: value for name, value in (overrides or [])}
+
+
+# --------------------------------------------------------------------------- landmark
+
+
+def _load_landmark_sequence(info: DatasetInfo, max_steps: int | None, seed: int):
+    if info.name == "sim-landmarks":
+        from jaxslam.datasets import landmark_sim
+
+        sequence = landmark_sim.simulate(seed=seed)
+    else:
+        from jaxslam.datasets import victoria_park
+
+        sequence = victoria_park.load_sequence(max_steps=max_steps)
+    if max_steps is not None:
+        sequence = _truncate(sequence, max_steps)
+    return sequence
+
+
+def _truncate(sequence, max_steps: int):
+    import dataclasses
+
+    t = sequence.times.shape[0]
+    if max_steps >= t:
+        return sequence
+    changes = {}
+    for field in dataclasses.fields(sequence):
+        value = getattr(sequence, field.name)
+        if isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == t and not field.name.startswith("gps"):
+            changes[field.name] = value[:max_steps]
+    return dataclasses.replace(sequence, **changes)
+
+
+def _param_fields(algorithm: str) -> dict[str, Any]:
+    if _kind_of(algorithm) == "landmark":
+        from jaxslam.feature.params import Params
+    else:
+        from jaxslam.grid.common import GridSlamParams as Params
+    return {name: getattr(Params(), name, None) for name in Params._fields}
+
+
+def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
+    fields = _param_fields(algorithm)
+    for name, _ in overrides.items():
+        default = fields.get(name, KeyError)
+        if default is KeyError:
+            scalar = sorted(n for n, v in fields.items() if isinstance(v, (int, float)))
+            raise RunError(f"--set {name}: {algorithm} has no parameter {name!r}; numeric parameters: {', '.join(scalar)}")
+        if not isinstance(default, (int, float)):
+            raise RunError(f"--set {name}: parameter {name!r} is not a single number and cannot be set here")
+
+
+def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots):
+    from jaxslam.feature.experiment import run_landmark_slam
+    from jaxslam.metrics.trajectory_io import write_tum
+
+    sequence = _load_landmark_sequence(info, max_steps, seed)
+    result = run_landmark_slam(
+        sequence, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
+        progress=progress, chunk=chunk or 512, dtype=dtype,
+    )
+    summary: dict[str, Any] = {
+        "algorithm": algorithm, "dataset": info.name, "particles": particles, "seed": seed,
+        "steps": result.steps, "wall_s": result.wall_s, "compile_s": result.compile_s,
+        "steps_per_s": result.steps / result.wall_s if result.wall_s > 0 else None,
+        "resamplings": result.resamplings, "landmarks": result.landmarks,
+        "dtype": np.dtype(dtype).name,
+    }
+    finite = bool(np.all(np.isfinite(result.trajectory)))
+    summary["finite"] = finite
+    reference_xy = None
+    true_landmarks = None
+    if info.name == "victoria-park":
+        from jaxslam.metrics.gps import gps_error
+
+        scores = gps_error(result.times, result.trajectory[:, :2], sequence.gps_times, sequence.gps_xy)
+        summary.update({k: scores[k] for k in ("gps_mean_m", "gps_rms_m", "gps_max_m", "n_used", "n_skipped")})
+        summary["gps_alignment"] = {"rotation_rad": scores["rotation_rad"], "translation": scores["translation"]}
+        rot, trans = np.asarray(scores["rotation"]), np.asarray(scores["translation"])
+        reference_xy = (np.asarray(sequence.gps_xy) - trans) @ rot  # GPS mapped into the filter frame
+        reference_xy = reference_xy[np.asarray(scores["used"], bool)]
+        ref_label = "GPS (aligned)"
+    else:
+        errors = np.linalg.norm(result.trajectory[:, :2] - sequence.true_poses[:, :2], axis=1)
+        summary.update({"pos_err_mean_m": float(errors.mean()), "pos_err_rms_m": float(np.sqrt((errors**2).mean())),
+                        "pos_err_max_m": float(errors.max())})
+        try:
+            from jaxslam.metrics.nees import pose_nees
+
+            nees = pose_nees(result.trajectory, result.pose_covs, sequence.true_poses)
+            summary["nees_mean"] = float(np.nanmean(nees))
+            summary["nees_expected"] = 3.0
+        except ImportError:
+            pass
+        reference_xy = sequence.true_poses[:, :2]
+        true_landmarks = sequence.landmarks
+        ref_label = "ground truth"
+    write_tum(out / "trajectory.tum", result.times, result.trajectory,
+              comment=f"jaxslam {algorithm} on {info.name}, {particles} particles, seed {seed}")
+    with open(out / "landmarks.csv", "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["id", "x_m", "y_m", "cov_xx", "cov_xy", "cov_yy"])
+        for i, (m, c) in enumerate(zip(result.landmark_means, result.landmark_covs)):
+            writer.writerow([i, f"{m[0]:.4f}", f"{m[1]:.4f}", f"{c[0, 0]:.6g}", f"{c[0, 1]:.6g}", f"{c[1, 1]:.6g}"])
+    np.savez_compressed(
+        out / "arrays.npz", kind="landmark", times=result.times, trajectory=result.trajectory,
+        landmark_means=result.landmark_means, landmark_covs=result.landmark_covs,
+        reference_xy=reference_xy if reference_xy is not None else np.zeros((0, 2)),
+        reference_label=ref_label,
+        true_landmarks=true_landmarks if true_landmarks is not None else np.zeros((0, 2)),
+        ess=result.info["ess"], resampled=result.info["resampled"], particles=particles,
+        weight_variance=result.info.get("weight_variance", np.zeros(0)),
+        title=f"{algorithm}, {info.name}, {particles} particles",
+    )
+    return summary
+
+
+# --------------------------------------------------------------------------- grid
+
+
+def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots):
+    from jaxslam.grid import experiment as grid_experiment
+    from jaxslam.metrics.trajectory_io import write_tum
+
+    name = info.name if info is not None else str(path)
+    if info is not None and info.name == "sim-laser":
+        from jaxslam.datasets import laser_sim
+
+        log = laser_sim.simulate(seed=seed)
+    else:
+        from jaxslam.datasets.carmen import load_dataset_log
+
+        log = load_dataset_log(info.name if info is not None else str(path))
+    result = grid_experiment.run_grid_slam(
+        log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
+        progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
+    )
+    summary: dict[str, Any] = {
+        "algorithm": algorithm, "dataset": name, "particles": particles, "seed": seed,
+        "scans": int(result.scan_times.shape[0]), "keyframes": int(result.keyframes.shape[0]),
+        "wall_s": result.wall_s, "compile_s": result.compile_s,
+        "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
+        "resamplings": result.resamplings, "dtype": np.dtype(dtype).name,
+        "finite": bool(np.all(np.isfinite(result.trajectory))),
+        "log_stats": getattr(log, "stats", {}),
+    }
+    write_tum(out / "trajectory.tum", result.scan_times, result.trajectory,
+              comment=f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}")
+    relations = info.relations_path() if info is not None else None
+    if relations is not None:
+        from jaxslam.metrics.relations import load_relations, relations_metric
+
+        scores = relations_metric(load_relations(relations), result.scan_times, result.trajectory)
+        summary.update(scores)
+    if hasattr(log, "true_poses"):
+        errors = np.linalg.norm(result.trajectory[:, :2] - np.asarray(log.true_poses)[:, :2], axis=1)
+        summary.update({"pos_err_mean_m": float(errors.mean()), "pos_err_max_m": float(errors.max())})
+    grid_experiment.export_map(result, out / "map")
+    np.savez_compressed(
+        out / "arrays.npz", kind="laser", times=result.scan_times, trajectory=result.trajectory,
+        log_odds=result.map_log_odds, resolution=result.resolution, origin=np.asarray(result.origin),
+        ess=result.info["ess"], resampled=result.info["resampled"], particles=particles,
+        title=f"{algorithm}, {name}, {particles} particles",
+    )
+    return summary
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def run(
+    out: str | Path,
+    dataset: str | None = None,
+    algorithm: str | None = None,
+    particles: int | None = None,
+    seed: int = 0,
+    max_steps: int | None = None,
+    overrides: dict[str, float] | None = None,
+    progress: bool = True,
+    chunk: int | None = None,
+    float64: bool = False,
+    plots: bool = True,
+) -> dict[str, Any]:
+    """Run one filter and write its output folder; returns the summary dict."""
+    import jax
+    import jax.numpy as jnp
+
+    info, path, kind = resolve_dataset(dataset, algorithm)
+    algorithm = algorithm or DEFAULT_ALGORITHM[kind]
+    if _kind_of(algorithm) != kind:
+        name = info.name if info is not None else str(path)
+        choices = LANDMARK_ALGORITHMS if kind == "landmark" else GRID_ALGORITHMS
+        raise RunError(f"algorithm {algorithm!r} needs {_kind_of(algorithm)} data but dataset {name!r} is "
+                       f"{kind} data; use one of: {', '.join(choices)}")
+    if info is not None and not info.simulated:
+        info.paths()  # raises DatasetNotFoundError naming what is missing
+    overrides = dict(overrides or {})
+    check_overrides(algorithm, overrides)
+    particles = particles or DEFAULT_PARTICLES[kind]
+    if float64:
+        jax.config.update("jax_enable_x64", True)
+    dtype = jnp.float64 if float64 else jnp.float32
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.time()
+    runner = run_landmark if kind == "landmark" else run_grid
+    args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
+    if kind == "laser":
+        args = (info, path) + args[1:]
+    summary = runner(*args)
+    summary["overrides"] = overrides
+    summary["total_s"] = time.time() - started
+    summary["jaxslam_version"] = __import__("jaxslam").__version__
+    summary["jax_version"] = jax.__version__
+    write_json(out / "summary.json", summary)
+    if plots:
+        replot(out)
+    return summary
+
+
+def run_from_args(args) -> dict[str, Any] | None:
+    """The ``jaxslam run`` subcommand."""
+    if args.list_params:
+        algorithm = args.algorithm or DEFAULT_ALGORITHM[resolve_dataset(args.dataset, None)[2]]
+        for name, default in _param_fields(algorithm).items():
+            print(f"{name:24s} {default!r}")
+        return None
+    if args.checkpoint_every or args.resume:
+        raise RunError("--checkpoint-every/--resume are not available yet for this algorithm")
+    return run(
+        out=args.out, dataset=args.dataset, algorithm=args.algorithm, particles=args.particles, seed=args.seed,
+        max_steps=args.max_steps, overrides=_overrides_dict(args.overrides), progress=not args.no_progress,
+        chunk=args.chunk, float64=args.float64, plots=not args.no_plots,
+    )
+
+
+def evaluate(trajectory: Path, relations: str | None = None, gps: str | None = None) -> dict[str, Any]:
+    """Score a TUM trajectory by a relations file (or dataset name) or by GPS."""
+    from jaxslam.metrics.trajectory_io import read_tum
+
+    if not Path(trajectory).exists():
+        raise DatasetNotFoundError(f"trajectory file {str(trajectory)!r} does not exist")
+    times, poses = read_tum(trajectory)
+    if relations is not None:
+        from jaxslam.metrics.relations import load_relations, relations_metric
+
+        path = Path(relations)
+        if not path.exists():
+            try:
+                info = lookup(relations)
+            except KeyError as err:
+                raise RunError(f"{relations!r} is neither a relations file nor a dataset name: {err.args[0]}") from None
+            path = info.relations_path()
+            if path is None:
+                raise RunError(f"dataset {info.name!r} has no relations file")
+        scores = relations_metric(load_relations(path), times, poses)
+        scores["relations_file"] = str(path)
+        return scores
+    info = lookup(gps)
+    if info.name != "victoria-park":
+        raise RunError(f"GPS scoring is available for victoria-park, not {info.name!r}")
+    from jaxslam.datasets.victoria_park import load_gps
+    from jaxslam.metrics.gps import gps_error
+
+    fixes = load_gps()
+    scores = gps_error(times, poses[:, :2], fixes.times, fixes.xy)
+    return {k: v for k, v in scores.items() if k not in ("used", "errors_m")}
+
+
+def replot(folder: str | Path) -> list[Path]:
+    """Draw the figures of an output folder from its ``arrays.npz``."""
+    from jaxslam import plotting
+
+    folder = Path(folder)
+    arrays_path = folder / "arrays.npz"
+    if not arrays_path.exists():
+        raise DatasetNotFoundError(f"{str(arrays_path)!r} not found: is {str(folder)!r} a `jaxslam run` output folder?")
+    try:
+        data = np.load(arrays_path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise DataFormatError(arrays_path, None, f"cannot read: {err}") from None
+    title = str(data["title"])
+    written = []
+    if str(data["kind"]) == "landmark":
+        fig = plotting.plot_landmark_slam(
+            data["trajectory"], data["landmark_means"], data["landmark_covs"],
+            reference_xy=data["reference_xy"], reference_label=str(data["reference_label"]),
+            true_landmarks=data["true_landmarks"], title=title,
+        )
+        written.append(plotting.save(fig, folder / "trajectory.png"))
+    else:
+        fig = plotting.plot_grid_map(data["log_odds"], float(data["resolution"]), data["origin"],
+                                     trajectory=data["trajectory"], title=title)
+        written.append(plotting.save(fig, folder / "map_trajectory.png"))
+    wv = data["weight_variance"] if "weight_variance" in data and data["weight_variance"].size else None
+    fig = plotting.plot_filter_health(data["ess"], data["resampled"], int(data["particles"]), wv, title=title)
+    written.append(plotting.save(fig, folder / "health.png"))
+    return written
