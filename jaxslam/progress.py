@@ -118,6 +118,7 @@ def run_scan_chunked(
     start: int = 0,
     callback: Callable[[Any, int], None] | None = None,
     runner=None,
+    checkpoint=None,
 ):
     """Scan ``step_fn`` over ``xs`` (leading axis = time) in jitted chunks.
 
@@ -135,16 +136,28 @@ def run_scan_chunked(
             buffers beyond the call (copy to host first).
         runner: a chunk runner from :func:`make_chunk_runner` to reuse (its compiled
             code is cached by JAX for equal shapes, so a sweep compiles once).
+        checkpoint: a :class:`jaxslam.checkpoint.Checkpoint`. With ``resume`` its file
+            (carry, outputs so far, position) replaces ``carry`` and ``start``; with
+            ``every`` the state is saved atomically at chunk ends. A resumed run's
+            ``ys`` cover all steps from 0 and equal those of an uninterrupted run.
 
     Returns:
-        ``(carry, ys, timing)`` with ``ys`` stacked over the steps ``start..T-1``.
+        ``(carry, ys, timing)`` with ``ys`` stacked over the steps ``start..T-1``
+        (from 0 when resuming from a checkpoint).
     """
+    prior_leaves: list | None = None
+    if checkpoint is not None and checkpoint.resume:
+        carry, start, prior_leaves = checkpoint.load(carry)
+        log(f"{desc}: resumed from {checkpoint.path} at step {start}", progress)
+    if checkpoint is not None and checkpoint.every is not None:
+        chunk = min(chunk, checkpoint.every)
     leaves = jax.tree_util.tree_leaves(xs)
     if not leaves:
         raise ValueError("xs has no arrays to scan over")
     total = int(np.shape(leaves[0])[0])
     if not 0 <= start <= total:
         raise ValueError(f"start={start} outside 0..{total}")
+    xs_all = xs
     xs = jax.tree_util.tree_map(lambda leaf: leaf[start:], xs)
     remaining = total - start
     chunk = max(1, min(chunk, max(remaining, 1)))
@@ -152,7 +165,12 @@ def run_scan_chunked(
     runner = runner or make_chunk_runner(step_fn, donate)
 
     if remaining == 0:
-        return carry, None, Timing(0.0, 0.0, 0)
+        ys = None
+        if prior_leaves is not None:
+            last = jax.tree_util.tree_map(lambda leaf: leaf[-1:], xs_all)
+            shapes = jax.eval_shape(runner, carry, last, jnp.ones((1,), bool))[1]
+            ys = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(shapes), prior_leaves)
+        return carry, ys, Timing(0.0, 0.0, 0)
 
     xs = _tree_pad(xs, remaining, padded_len)
     valid = jnp.arange(padded_len) < remaining
@@ -181,10 +199,25 @@ def run_scan_chunked(
             done += n_valid
             outputs.append(ys)
             bar.update(n_valid)
+            if checkpoint is not None and (checkpoint.due(done) or (checkpoint.every and done == total)):
+                leaves = jax.tree_util.tree_leaves(_stack(outputs, done - start))
+                if prior_leaves is not None:
+                    leaves = [np.concatenate([p, np.asarray(c)], 0) for p, c in zip(prior_leaves, leaves)]
+                checkpoint.save(carry, done, leaves)
             if callback is not None:
                 callback(carry, done)
     finally:
         bar.close()
     wall_s = time.perf_counter() - t0
-    ys = jax.tree_util.tree_map(lambda *parts: jnp.concatenate(parts, 0)[:remaining], *outputs)
+    ys = _stack(outputs, remaining)
+    if prior_leaves is not None:
+        treedef = jax.tree_util.tree_structure(ys)
+        leaves = [jnp.concatenate([jnp.asarray(p), c], 0) for p, c in zip(prior_leaves, jax.tree_util.tree_leaves(ys))]
+        ys = jax.tree_util.tree_unflatten(treedef, leaves)
     return carry, ys, Timing(compile_s, wall_s, remaining)
+
+
+def _stack(outputs, length: int):
+    """Concatenate per-chunk outputs and drop the padding steps."""
+    return jax.tree_util.tree_map(lambda *parts: jnp.concatenate(parts, 0)[:length], *outputs)
+

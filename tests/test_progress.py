@@ -57,3 +57,51 @@ def test_runner_compiles_once_across_calls():
                          {"value": scale * jnp.arange(30.0)}, chunk=8, progress=False, runner=runner)
     # traced once for the step and once for the shape of its output, not per call
     assert len(traces) <= 2
+
+
+def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path):
+    import pytest
+
+    from jaxslam.checkpoint import Checkpoint, CheckpointError
+
+    xs = {"value": jnp.sin(jnp.arange(47, dtype=jnp.float32))}
+    init = (jnp.array(0.0, jnp.float32), jnp.array(0))
+    full_carry, full_ys, _ = run_scan_chunked(step, init, xs, chunk=8, progress=False)
+
+    path = tmp_path / "ckpt.npz"
+    fingerprint = {"algorithm": "toy", "seed": 0}
+
+    class Interrupt(Exception):
+        pass
+
+    def crash(_carry, done):
+        if done >= 24:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        run_scan_chunked(step, (jnp.array(0.0, jnp.float32), jnp.array(0)), xs, chunk=8, progress=False,
+                         checkpoint=Checkpoint(path, every=8, fingerprint=fingerprint), callback=crash)
+    assert path.exists() and not path.with_name(path.name + ".tmp").exists()
+    resumed = Checkpoint(path, every=8, fingerprint=fingerprint, resume=True)
+    carry, ys, timing = run_scan_chunked(step, (jnp.array(0.0, jnp.float32), jnp.array(0)), xs, chunk=8,
+                                         progress=False, checkpoint=resumed)
+    assert timing.steps == 47 - 24
+    assert np.asarray(carry[0]).tobytes() == np.asarray(full_carry[0]).tobytes()
+    assert int(carry[1]) == 47
+    np.testing.assert_array_equal(np.asarray(ys["total"]), np.asarray(full_ys["total"]))
+
+    # a checkpoint from another run is refused, naming what differs
+    with pytest.raises(CheckpointError, match="seed"):
+        run_scan_chunked(step, init, xs, chunk=8, progress=False,
+                         checkpoint=Checkpoint(path, fingerprint={"algorithm": "toy", "seed": 1}, resume=True))
+    # a state of another shape is refused
+    with pytest.raises(CheckpointError, match="shape"):
+        run_scan_chunked(step, (jnp.zeros(3, jnp.float32), jnp.array(0)), xs, chunk=8, progress=False,
+                         checkpoint=Checkpoint(path, fingerprint=fingerprint, resume=True))
+    # a truncated file is refused as corrupt
+    path.write_bytes(path.read_bytes()[:100])
+    with pytest.raises(CheckpointError, match="corrupt"):
+        run_scan_chunked(step, init, xs, chunk=8, progress=False,
+                         checkpoint=Checkpoint(path, fingerprint=fingerprint, resume=True))
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        Checkpoint(tmp_path / "none.npz", resume=True).load(init)
