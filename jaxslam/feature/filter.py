@@ -1,0 +1,514 @@
+r"""Unscented FastSLAM with the RB or the ERB proposal (Kim, Kim & Chung 2011).
+
+One filter, ``init``/``step``/``run``; the proposal is ``Config.proposal``
+(``"rb"``: eqs. 1-3, ``"erb"``: Sec. III-A), everything else is shared, including
+the random streams: with the same key both filters draw the same normals for
+sampling and the same uniforms for resampling.
+
+One step (one laser scan), for every particle (``vmap``):
+
+1. **Prediction** (Sec. II-A.1): for each control row ``[v, alpha, dt]`` of the scan
+   (padding rows with ``dt = 0`` are skipped), an unscented transform over
+   :math:`[x; u_{noise}]` with covariance :math:`\operatorname{blockdiag}(P, Q)`,
+   :math:`Q = \operatorname{diag}(\sigma_v^2, \sigma_\alpha^2)`, through the car model
+   (:mod:`jaxslam.models.vehicle`) gives :math:`\hat x, \bar P`.
+2. **Data association** (:mod:`jaxslam.feature.association`).
+3. **Proposal** (:mod:`jaxslam.feature.proposals`) from the matched observations,
+   batch (default, as the paper) or sequential; **sampling**
+   :math:`x \sim \mathcal N(x^{[m]}, P^{[m]})`, after which the pose covariance is
+   reset to ``pose_reset_std``. A particle with no match but new landmarks samples from
+   the prediction; one with no observation keeps :math:`(\hat x, \bar P)`.
+4. **Weight** (eq. 11): :math:`\log w \mathrel{+}= \log \mathcal N(\nu; 0, S)`.
+5. **Map update** given the sampled pose: an unscented Kalman update of each matched
+   landmark (2 + additive R), and new landmarks through the inverse observation model
+   with the unscented transform of :math:`z \sim \mathcal N(z, R)`; evidence and pruning
+   (:mod:`jaxslam.feature.landmarks`).
+6. **Selective resampling** when ESS < ``resample_threshold`` N.
+
+``Info`` per step carries the weighted pose estimate and covariance, ESS, whether it
+resampled, the weight variance, and the paper's Fig. 1 quantity
+:math:`\log \sum_m w^{[m]} \det P^{[m]}` for both the ERB and the RB proposal computed
+on the same particles (NaN when no particle was updated).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.scipy.special import logsumexp
+
+from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
+from jaxslam.core.se2 import pose_mean as weighted_pose_mean
+from jaxslam.core.se2 import pose_residual, wrap_angle
+from jaxslam.core.sigma import sigma_points, ut_weights
+from jaxslam.feature import _small
+from jaxslam.feature.association import associate
+from jaxslam.feature.landmarks import LandmarkTable, empty_table, free_slots, local_slots
+from jaxslam.feature.params import Config, Params
+from jaxslam.feature.proposals import (
+    PROPOSAL_FUNCTIONS,
+    Proposal,
+    combine_batch,
+    innovation_terms,
+    measurement_cov,
+)
+from jaxslam.models.range_bearing import inverse_observe, sensor_position
+
+
+class Observation(NamedTuple):
+    """The observations of one scan: ``values (Z, 2)`` range/bearing, ``mask (Z,)``."""
+
+    values: Array
+    mask: Array
+
+
+class State(NamedTuple):
+    """Particles.
+
+    Attributes:
+        pose_means: ``(N, 3)`` pose of each particle (a sample once it was updated).
+        pose_sqrts: ``(N, 3, 3)`` lower factor of the pose covariance accumulated since
+            the last sampling (the predicted covariance ``P-bar``).
+        log_weights: ``(N,)`` normalised log-weights.
+        landmarks: :class:`LandmarkTable` with leading axis ``N``.
+    """
+
+    pose_means: Array
+    pose_sqrts: Array
+    log_weights: Array
+    landmarks: LandmarkTable
+
+
+class Info(NamedTuple):
+    """Per-step diagnostics (scalars unless noted)."""
+
+    pose_estimate: Array  # (3,) weighted mean pose
+    pose_cov: Array  # (3, 3) weighted covariance of the particle poses
+    ess: Array  # effective sample size before resampling
+    resampled: Array  # bool
+    weight_variance: Array  # variance of the normalised weights before resampling
+    log_det_proposal_erb: Array  # log sum_m w_m det P_ERB^[m] (updated particles), NaN if none
+    log_det_proposal_rb: Array  # the same for the RB proposal on the same particles
+    updated: Array  # bool: some particle had a matched observation
+    num_matched: Array  # mean matched observations per particle
+    num_new: Array  # mean new landmarks per particle
+    num_dropped: Array  # new landmarks dropped because a table was full (all particles)
+    local_overflow: Array  # most local candidates left out in one particle
+    num_landmarks: Array  # landmarks of the highest-weight particle
+    num_landmarks_mean: Array  # weighted mean number of landmarks
+    best_particle: Array  # int32 index of the highest-weight particle
+
+
+def cast_params(params: Params, dtype) -> Params:
+    """Every leaf of ``params`` as an array of ``dtype``."""
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), params)
+
+
+def init(key: Array, params: Params, config: Config, initial_pose: Array | None = None) -> State:
+    """All particles at ``initial_pose`` (default the origin), empty maps, equal weights.
+
+    The dtype of the filter is that of ``initial_pose`` (default float: float32, or
+    float64 under ``jax_enable_x64``). ``key`` is unused (a deterministic start) but
+    kept first for the common signature.
+    """
+    del key
+    pose = jnp.zeros(3) if initial_pose is None else jnp.asarray(initial_pose)
+    if not jnp.issubdtype(pose.dtype, jnp.floating):
+        pose = pose.astype(float)
+    dtype = pose.dtype
+    n = config.num_particles
+    reset = jnp.asarray(params.pose_reset_std, dtype)
+    return State(
+        pose_means=jnp.broadcast_to(pose, (n, 3)),
+        pose_sqrts=jnp.broadcast_to(reset * jnp.eye(3, dtype=dtype), (n, 3, 3)),
+        log_weights=jnp.full((n,), -jnp.log(jnp.asarray(n, dtype))),
+        landmarks=empty_table(config.capacity, dtype, (n,)),
+    )
+
+
+# ----------------------------------------------------------------------- one particle
+
+
+# Augmented sigma points over [pose (3); speed noise; steering noise] in filterpy order
+# [centre, +cols (5), -cols (5)]: which of the 7 pose points (centre, +3, -3), which
+# speed-noise sign and which of the 3 steering values (centre, +, -) each one uses.
+_POSE_OF_POINT = np.array([0, 1, 2, 3, 0, 0, 4, 5, 6, 0, 0])
+_SPEED_SIGN = np.array([0, 0, 0, 0, 1, 0, 0, 0, 0, -1, 0], np.float32)
+_STEER_OF_POINT = np.array([0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 2])
+
+
+def predict_pose(pose: Array, pose_sqrt: Array, controls: Array, params: Params) -> tuple[Array, Array]:
+    """Unscented prediction over ``[pose; speed noise; steering noise]`` (n = 5) through
+    :func:`jaxslam.models.vehicle.car_motion` for each control row ``(K, 3)``; rows with
+    ``dt <= 0`` are skipped. Returns the predicted mean and lower Cholesky factor.
+
+    The 11 sigma points have only 7 distinct headings and 3 distinct steering angles,
+    so the trigonometry is evaluated on those alone (the same numbers as the generic
+    transform, at a third of the cost).
+    """
+    dtype = pose.dtype
+    mean_w, cov_w, lam = ut_weights(5, params.ut_predict, dtype)
+    gamma = jnp.sqrt(5 + lam)
+    geometry = params.geometry
+    speed_sign = jnp.asarray(_SPEED_SIGN, dtype)
+
+    def row(carry, control):
+        mean, sqrt = carry
+        off = gamma * sqrt.T
+        poses = jnp.concatenate([mean[None], mean + off, mean - off], 0)[_POSE_OF_POINT]  # (11, 3)
+        heading7 = jnp.concatenate([mean[2:3], mean[2] + off[:, 2], mean[2] - off[:, 2]])
+        cos7, sin7 = jnp.cos(heading7), jnp.sin(heading7)
+        cos, sin = cos7[_POSE_OF_POINT], sin7[_POSE_OF_POINT]
+        steer_noise = gamma * params.steering_std
+        tan3 = jnp.tan(control[1] + jnp.stack([jnp.zeros((), dtype), steer_noise, -steer_noise]))
+        tan = tan3[_STEER_OF_POINT]
+        speed = control[0] + speed_sign * (gamma * params.speed_std)
+        dt = control[2]
+        v_c = speed / (1.0 - tan * geometry.encoder_offset / geometry.wheelbase)
+        omega = v_c * tan / geometry.wheelbase
+        a, b = geometry.point_forward, geometry.point_left
+        moved = jnp.stack(
+            [
+                poses[:, 0] + dt * (v_c * cos - omega * (a * sin + b * cos)),
+                poses[:, 1] + dt * (v_c * sin + omega * (a * cos - b * sin)),
+                poses[:, 2] + dt * omega,
+            ],
+            -1,
+        )
+        new_mean = weighted_pose_mean(moved, mean_w)
+        dev = jax.vmap(pose_residual, (0, None))(moved, new_mean)
+        cov = jnp.einsum("i,ij,ik->jk", cov_w, dev, dev)
+        new_sqrt = _small.chol3(cov)
+        ok = dt > 0
+        return (jnp.where(ok, new_mean, mean), jnp.where(ok, new_sqrt, sqrt)), None
+
+    (mean, sqrt), _ = jax.lax.scan(row, (pose, pose_sqrt), controls)
+    return mean, sqrt
+
+
+def _sensor_frame(pose: Array, params: Params) -> tuple[Array, Array, Array]:
+    """Sensor position ``(2,)`` and ``cos``, ``sin`` of the heading of ``pose``."""
+    offset = jnp.asarray(params.sensor_offset, pose.dtype)
+    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+    xy = jnp.stack([pose[0] + c * offset[0] - s * offset[1], pose[1] + s * offset[0] + c * offset[1]])
+    return xy, c, s
+
+
+def update_landmark(pose: Array, mean: Array, cov: Array, observation: Array, params: Params) -> tuple[Array, Array]:
+    """Unscented Kalman update of one landmark given a (sampled) pose (n = 2 sigma
+    points over the landmark, additive R)."""
+    dtype = mean.dtype
+    mean_w, cov_w, _ = ut_weights(2, params.ut_landmark, dtype)
+    points = sigma_points(mean, _small.chol2(cov), params.ut_landmark)
+    sensor = sensor_position(pose, jnp.asarray(params.sensor_offset, dtype))
+    d = points - sensor
+    y = jnp.stack([jnp.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2), jnp.arctan2(d[:, 1], d[:, 0]) - pose[2]], -1)
+    y = y.at[:, 1].set(y[0, 1] + wrap_angle(y[:, 1] - y[0, 1]))
+    y_mean = mean_w @ y
+    dev = y - y_mean
+    s = jnp.einsum("i,ij,ik->jk", cov_w, dev, dev) + measurement_cov(params, dtype)
+    cross = jnp.einsum("i,ij,ik->jk", cov_w, points - mean, dev)
+    s_inv, _ = _small.inv2(s)
+    gain = cross @ s_inv
+    nu = jnp.stack([observation[0] - y_mean[0], wrap_angle(observation[1] - y_mean[1])])
+    new_cov = cov - gain @ s @ gain.T
+    return mean + gain @ nu, 0.5 * (new_cov + new_cov.T)
+
+
+def initialise_landmark(pose: Array, observation: Array, params: Params) -> tuple[Array, Array]:
+    """Landmark mean and covariance from one observation: the unscented transform of
+    the inverse observation model over ``z ~ N(observation, R)``."""
+    dtype = pose.dtype
+    mean_w, cov_w, _ = ut_weights(2, params.ut_landmark, dtype)
+    r_sqrt = jnp.diag(jnp.stack([params.range_std, params.bearing_std]))
+    points = sigma_points(observation, r_sqrt, params.ut_landmark)
+    offset = jnp.asarray(params.sensor_offset, dtype)
+    m = jax.vmap(inverse_observe, (None, 0, None))(pose, points, offset)
+    m_mean = mean_w @ m
+    dev = m - m_mean
+    cov = jnp.einsum("i,ij,ik->jk", cov_w, dev, dev)
+    return m_mean, 0.5 * (cov + cov.T)
+
+
+class _ParticleOut(NamedTuple):
+    pose: Array
+    pose_sqrt: Array
+    log_weight_increment: Array
+    landmarks: LandmarkTable
+    has_match: Array
+    log_det_erb: Array
+    log_det_rb: Array
+    num_matched: Array
+    num_new: Array
+    num_dropped: Array
+    local_overflow: Array
+
+
+def _particle_step(
+    key: Array,
+    pose: Array,
+    pose_sqrt: Array,
+    table: LandmarkTable,
+    controls: Array,
+    observation: Observation,
+    params: Params,
+    config: Config,
+) -> _ParticleOut:
+    dtype = pose.dtype
+    capacity = config.capacity
+    z, mask = observation.values, observation.mask
+    offset = jnp.asarray(params.sensor_offset, dtype)
+    half_fov = 0.5 * params.fov
+
+    # 1. prediction
+    pred_mean, pred_sqrt = predict_pose(pose, pose_sqrt, controls, params)
+
+    # 2. association against the local part of the map
+    sensor_xy = sensor_position(pred_mean, offset)
+    local, local_valid, overflow = local_slots(
+        table, sensor_xy, pred_mean[2], params.max_range, half_fov, params.candidate_margin, config.local_size
+    )
+    assoc = associate(pred_mean, pred_sqrt, table, local, local_valid, z, mask, params, config.candidates)
+    matched = assoc.matched
+    has_match = jnp.any(matched)
+    has_new = jnp.any(assoc.new)
+
+    # 3. proposals (both, from one set of sigma-point predictions in batch mode)
+    if config.update == "batch":
+        terms_erb = jax.vmap(innovation_terms, (0, 0, None, None))(assoc.sigma_obs, z, params, False)
+        terms_rb = jax.vmap(innovation_terms, (0, 0, None, None))(assoc.sigma_obs, z, params, True)
+        prop_erb = combine_batch(pred_mean, pred_sqrt, terms_erb, matched)
+        prop_rb = combine_batch(pred_mean, pred_sqrt, terms_rb, matched)
+        own = prop_erb if config.proposal == "erb" else prop_rb
+    else:
+        args = (pred_mean, pred_sqrt, assoc.landmark_means, assoc.landmark_chols, z, matched, params, True)
+        own = PROPOSAL_FUNCTIONS[config.proposal](*args)
+        if config.compare_proposals:
+            other = PROPOSAL_FUNCTIONS["rb" if config.proposal == "erb" else "erb"](*args)
+        else:
+            nan = jnp.full((), jnp.nan, dtype)
+            other = Proposal(own.mean, own.sqrt_cov, nan, own.log_likelihood, own.num_used)
+        prop_erb, prop_rb = (own, other) if config.proposal == "erb" else (other, own)
+
+    # 3b. sampling, the same normals whatever the proposal; 4. weight (eq. 11)
+    eps = jax.random.normal(key, (3,), dtype)
+    from_proposal = own.mean + own.sqrt_cov @ eps
+    from_prediction = pred_mean + pred_sqrt @ eps
+    sampled = jnp.where(has_match, from_proposal, jnp.where(has_new, from_prediction, pred_mean))
+    sampled = sampled.at[2].set(wrap_angle(sampled[2]))
+    reset = params.pose_reset_std * jnp.eye(3, dtype=dtype)
+    new_sqrt = jnp.where(has_match | has_new, reset, pred_sqrt)
+    log_w_inc = jnp.where(has_match, own.log_likelihood, jnp.zeros((), dtype))
+
+    # 5. map. Everything is read from the old table before any slot is written, so the
+    # scatters below can update the tables in place.
+    # 5a. evidence over the local set: +1 matched, -1 expected visible but missed.
+    # Visible: at least `margin` inside the range and inside the field of view's edge
+    # (forward >= r cos(half_fov) + margin; no arctangent needed).
+    local_means = table.means[jnp.minimum(local, capacity - 1)]
+    sensor_xy, cos_h, sin_h = _sensor_frame(sampled, params)
+    rel = local_means - sensor_xy
+    dist = jnp.sqrt(rel[:, 0] ** 2 + rel[:, 1] ** 2)
+    forward = cos_h * rel[:, 0] + sin_h * rel[:, 1]
+    margin = params.visibility_margin
+    visible = local_valid & (dist < params.max_range - margin) & (forward >= dist * jnp.cos(half_fov) + margin)
+    local_matched = jnp.any((local[:, None] == assoc.slots[None, :]) & matched[None, :], axis=1)
+    delta = jnp.where(local_matched, 1.0, jnp.where(visible, -1.0, 0.0)).astype(dtype)
+    local_evidence = table.evidence[jnp.minimum(local, capacity - 1)] + delta
+    alive = local_evidence >= params.prune_threshold
+    num_pruned = jnp.sum(local_valid & ~alive)
+
+    # 5b. matched landmarks: unscented update given the sampled pose
+    lm_means, lm_covs = jax.vmap(update_landmark, (None, 0, 0, 0, None))(
+        sampled, assoc.landmark_means, table.covs[jnp.minimum(assoc.slots, capacity - 1)], z, params
+    )
+    means = table.means.at[assoc.slots].set(lm_means, mode="drop")
+    covs = table.covs.at[assoc.slots].set(lm_covs, mode="drop")
+
+    evidence = table.evidence.at[local].set(local_evidence, mode="drop")
+    active = table.active.at[local].set(alive & local_valid, mode="drop")
+
+    # 5c. new landmarks in the first free slots
+    k = z.shape[0]
+    free = free_slots(active, k)
+    rank = jnp.cumsum(assoc.new) - 1
+    new_slots = jnp.where(assoc.new, free[jnp.clip(rank, 0, k - 1)], capacity)
+    new_means, new_covs = jax.vmap(initialise_landmark, (None, 0, None))(sampled, z, params)
+    means = means.at[new_slots].set(new_means, mode="drop")
+    covs = covs.at[new_slots].set(new_covs, mode="drop")
+    evidence = evidence.at[new_slots].set(jnp.broadcast_to(params.new_evidence, (k,)), mode="drop")
+    active = active.at[new_slots].set(True, mode="drop")
+    added = jnp.sum(new_slots < capacity)
+    count = table.count + added - num_pruned
+    dropped = jnp.sum(assoc.new) - added
+
+    return _ParticleOut(
+        pose=sampled,
+        pose_sqrt=new_sqrt,
+        log_weight_increment=log_w_inc,
+        landmarks=LandmarkTable(means, covs, evidence, active, count.astype(jnp.int32)),
+        has_match=has_match,
+        log_det_erb=prop_erb.log_det_cov,
+        log_det_rb=prop_rb.log_det_cov,
+        num_matched=jnp.sum(matched),
+        num_new=jnp.sum(assoc.new),
+        num_dropped=dropped,
+        local_overflow=overflow,
+    )
+
+
+# ----------------------------------------------------------------------- the filter
+
+
+def _weighted_log_det(log_weights: Array, log_dets: Array, used: Array) -> Array:
+    """``log(sum_m w_m det_m / sum_m w_m)`` over the used particles; NaN if none."""
+    lw = jnp.where(used, log_weights, -jnp.inf)
+    total = logsumexp(lw)
+    value = logsumexp(jnp.where(used, lw + log_dets, -jnp.inf)) - total
+    return jnp.where(jnp.any(used), value, jnp.nan)
+
+
+def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array, Array]:
+    """Weighted mean pose (heading averaged about the best particle), covariance of
+    the particle mixture, weights and the best particle."""
+    weights = jnp.exp(log_weights)
+    best = jnp.argmax(log_weights)
+    ref = state.pose_means[best]
+    dev = jax.vmap(pose_residual, (0, None))(state.pose_means, ref)
+    shift = weights @ dev
+    estimate = ref + shift
+    estimate = estimate.at[2].set(wrap_angle(estimate[2]))
+    dev = dev - shift
+    spread = jnp.einsum("m,mi,mj->ij", weights, dev, dev)
+    own = jnp.einsum("m,mij,mkj->ik", weights, state.pose_sqrts, state.pose_sqrts)
+    return estimate, spread + own, weights, best
+
+
+def _finish(key: Array, state: State, out: _ParticleOut | None, params: Params, config: Config) -> tuple[State, Info]:
+    dtype = state.pose_means.dtype
+    log_w = normalize_log_weights(state.log_weights)
+    estimate, cov, weights, best = _summary(state, log_w)
+    ess = effective_sample_size(log_w)
+    if out is None:
+        nan = jnp.full((), jnp.nan, dtype)
+        zero = jnp.zeros((), dtype)
+        izero = jnp.zeros((), jnp.int32)
+        extra = dict(
+            log_det_proposal_erb=nan, log_det_proposal_rb=nan, updated=jnp.zeros((), bool),
+            num_matched=zero, num_new=zero, num_dropped=izero, local_overflow=izero,
+        )
+        resampled = jnp.zeros((), bool)
+        new_state = state._replace(log_weights=log_w)
+    else:
+        extra = dict(
+            log_det_proposal_erb=_weighted_log_det(log_w, out.log_det_erb, out.has_match),
+            log_det_proposal_rb=_weighted_log_det(log_w, out.log_det_rb, out.has_match),
+            updated=jnp.any(out.has_match),
+            num_matched=jnp.mean(out.num_matched.astype(dtype)),
+            num_new=jnp.mean(out.num_new.astype(dtype)),
+            num_dropped=jnp.sum(out.num_dropped).astype(jnp.int32),
+            local_overflow=jnp.max(out.local_overflow).astype(jnp.int32),
+        )
+        ancestors, resampled, new_log_w = selective_resample(key, log_w, params.resample_threshold, config.resampler)
+        new_state = jax.lax.cond(
+            resampled,
+            lambda s: jax.tree_util.tree_map(lambda x: x[ancestors], s),
+            lambda s: s,
+            state._replace(log_weights=new_log_w),
+        )
+    info = Info(
+        pose_estimate=estimate,
+        pose_cov=cov,
+        ess=ess,
+        resampled=resampled,
+        weight_variance=jnp.var(weights),
+        num_landmarks=state.landmarks.count[best],
+        num_landmarks_mean=weights @ state.landmarks.count.astype(dtype),
+        best_particle=best.astype(jnp.int32),
+        **extra,
+    )
+    return new_state, info
+
+
+@partial(jax.jit, static_argnames=("config",))
+def step(
+    key: Array, state: State, control: Array, observation: Observation, params: Params, config: Config
+) -> tuple[State, Info]:
+    """One scan: predict over the control rows ``(K, 3)``, associate, sample from the
+    proposal, weight, update the maps, resample if the ESS is low.
+
+    Args:
+        key: PRNG key of this step.
+        state: particles.
+        control: ``(K, 3)`` rows ``[speed, steering, dt]``; ``dt = 0`` rows are padding.
+        observation: :class:`Observation` of this scan.
+        params: traced parameters.
+        config: static configuration.
+    """
+    dtype = state.pose_means.dtype
+    params = cast_params(params, dtype)
+    control = jnp.asarray(control, dtype)
+    observation = Observation(jnp.asarray(observation.values, dtype), jnp.asarray(observation.mask, bool))
+    k_sample, k_resample = jax.random.split(key)
+    particle_keys = jax.random.split(k_sample, config.num_particles)
+
+    def active_step(state):
+        out = jax.vmap(_particle_step, (0, 0, 0, 0, None, None, None, None))(
+            particle_keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation, params, config
+        )
+        updated = State(out.pose, out.pose_sqrt, state.log_weights + out.log_weight_increment, out.landmarks)
+        return _finish(k_resample, updated, out, params, config)
+
+    def idle_step(state):
+        return _finish(k_resample, state, None, params, config)
+
+    if not config.skip_stationary:
+        return active_step(state)
+    moving = jnp.any((control[:, 2] > 0) & (control[:, 0] != 0))
+    return jax.lax.cond(moving, active_step, idle_step, state)
+
+
+def run(
+    key: Array,
+    params: Params,
+    config: Config,
+    controls: Array,
+    observations: Array,
+    obs_mask: Array,
+    initial_pose: Array | None = None,
+) -> tuple[State, Info]:
+    """Scan :func:`step` over a whole sequence.
+
+    Args:
+        key: PRNG key; step ``t`` uses ``split(key, T)[t]``.
+        params, config: as for :func:`step`.
+        controls: ``(T, K, 3)``.
+        observations: ``(T, Z, 2)``.
+        obs_mask: ``(T, Z)``.
+        initial_pose: ``(3,)``; its dtype sets the filter's dtype.
+
+    Returns:
+        ``(final_state, infos)`` with every :class:`Info` field stacked over ``T``.
+    """
+    state = init(key, params, config, initial_pose)
+    keys = step_keys(key, np.shape(controls)[0])
+    return _run_jit(keys, state, controls, observations, obs_mask, params, config)
+
+
+def step_keys(key: Array, num_steps: int) -> Array:
+    """The per-step keys :func:`run` uses."""
+    return jax.random.split(jax.random.fold_in(key, 1), num_steps)
+
+
+@partial(jax.jit, static_argnames=("config",))
+def _run_jit(keys, state, controls, observations, obs_mask, params, config):
+    def body(s, xs):
+        k, u, z, m = xs
+        return step(k, s, u, Observation(z, m), params, config)
+
+    return jax.lax.scan(body, state, (keys, controls, observations, obs_mask))
