@@ -1,0 +1,140 @@
+"""The command line: every subcommand, bad arguments (exit 2), missing datasets."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from jaxslam import cli
+from jaxslam.datasets import paths
+
+
+def run_cli(*argv):
+    try:
+        return cli.main(list(argv))
+    except SystemExit as exc:
+        return exc.code
+
+
+@pytest.fixture
+def no_data(monkeypatch, tmp_path):
+    """Point every data root at an empty folder."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    monkeypatch.setenv(paths.ENV_VAR, str(empty))
+    monkeypatch.setattr(paths, "candidate_roots", lambda: [empty])
+    return empty
+
+
+def test_help_lists_every_subcommand(capsys):
+    assert run_cli("--help") == 0
+    out = capsys.readouterr().out
+    for word in ("run", "evaluate", "datasets", "plot"):
+        assert word in out
+
+
+def test_run_help_explains_options_with_defaults(capsys):
+    assert run_cli("run", "--help") == 0
+    out = capsys.readouterr().out
+    for option in ("--dataset", "--algorithm", "--particles", "--seed", "--out", "--set", "--max-steps"):
+        assert option in out
+    assert "default" in out
+
+
+@pytest.mark.parametrize(
+    "argv, fragment",
+    [
+        (("run", "--particles", "0", "--out", "x"), "positive integer"),
+        (("run", "--particles", "many", "--out", "x"), "positive integer"),
+        (("run", "--algorithm", "kalman", "--out", "x"), "invalid choice"),
+        (("run",), "--out"),
+        (("run", "--out", "x", "--set", "speed_std"), "NAME=VALUE"),
+        (("run", "--out", "x", "--set", "speed_std=fast"), "must be a number"),
+        (("evaluate", "--trajectory", "t.tum"), "required"),
+        (("frobnicate",), "invalid choice"),
+    ],
+)
+def test_bad_arguments_exit_2_with_message(capsys, argv, fragment):
+    assert run_cli(*argv) == 2
+    assert fragment in capsys.readouterr().err
+
+
+def test_unknown_dataset_and_wrong_kind(capsys, tmp_path):
+    assert run_cli("run", "--dataset", "atlantis", "--out", str(tmp_path / "o")) == 2
+    assert "unknown dataset 'atlantis'" in capsys.readouterr().err
+    assert run_cli("run", "--dataset", "victoria-park", "--algorithm", "gmapping", "--out", str(tmp_path / "o")) == 2
+    assert "needs laser data" in capsys.readouterr().err
+
+
+def test_unknown_override_names_the_choices(capsys, tmp_path):
+    assert run_cli("run", "--out", str(tmp_path / "o"), "--set", "warp_factor=9") == 2
+    err = capsys.readouterr().err
+    assert "no parameter 'warp_factor'" in err and "speed_std" in err
+
+
+def test_missing_dataset_names_dataset_paths_and_env(no_data, capsys, tmp_path):
+    assert run_cli("run", "--dataset", "victoria-park", "--out", str(tmp_path / "o")) == 2
+    err = capsys.readouterr().err
+    assert "victoria-park" in err
+    assert str(no_data) in err
+    assert "JAXSLAM_DATA" in err
+
+
+def test_missing_carmen_path(capsys, tmp_path):
+    assert run_cli("run", "--dataset", str(tmp_path / "nope.clf.gz"), "--out", str(tmp_path / "o")) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_datasets_lists_found_and_missing(capsys, no_data):
+    assert run_cli("datasets") == 0
+    out = capsys.readouterr().out
+    assert "sim-landmarks" in out and "MISSING" in out and "JAXSLAM_DATA" in out
+
+
+def test_datasets_finds_shipped_data(capsys):
+    assert run_cli("datasets") == 0
+    out = capsys.readouterr().out
+    line = next(line for line in out.splitlines() if line.startswith("intel "))
+    assert "found" in line
+
+
+def test_run_simulated_landmarks_writes_outputs_then_evaluate_and_plot(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert run_cli("run", "--out", str(out), "--particles", "8", "--max-steps", "60", "--no-progress",
+                   "--set", "range_std=0.3") == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("algorithm", "dataset", "particles", "seed", "steps", "wall_s", "compile_s", "resamplings", "landmarks"):
+        assert key in summary
+    assert summary["steps"] == 60 and summary["particles"] == 8 and summary["overrides"] == {"range_std": 0.3}
+    for name in ("trajectory.tum", "landmarks.csv", "trajectory.png", "health.png", "arrays.npz"):
+        assert (out / name).stat().st_size > 0
+    (out / "trajectory.png").unlink()
+    capsys.readouterr()
+    assert run_cli("plot", str(out)) == 0
+    assert (out / "trajectory.png").exists()
+    assert run_cli("plot", str(tmp_path)) == 2
+    assert "arrays.npz" in capsys.readouterr().err
+
+
+def test_evaluate_relations_of_raw_odometry(tmp_path, capsys):
+    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.metrics.trajectory_io import write_tum
+
+    log = load_dataset_log("intel")
+    traj = tmp_path / "odom.tum"
+    write_tum(traj, log.scan_times, log.odom_poses)
+    scores_file = tmp_path / "scores.json"
+    assert run_cli("evaluate", "--relations", "intel", "--trajectory", str(traj), "--out", str(scores_file)) == 0
+    scores = json.loads(scores_file.read_text())
+    assert abs(scores["trans_err_mean_m"] - 7.37) < 0.01  # the README's raw-odometry figure
+    assert run_cli("evaluate", "--relations", "mit-csail", "--trajectory", str(traj)) == 2
+    assert "no relations file" in capsys.readouterr().err
+    assert run_cli("evaluate", "--relations", "intel", "--trajectory", str(tmp_path / "none.tum")) == 2
+
+
+def test_console_script_entry_point():
+    result = subprocess.run([sys.executable, "-m", "jaxslam.cli", "datasets"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert np.any(["sim-laser" in line for line in result.stdout.splitlines()])
