@@ -86,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--particles", type=_positive_int, default=None,
                      help="number of particles (default: 100 landmark, 30 laser)")
     run.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (recorded in summary.json)")
-    run.add_argument("--out", type=Path, required=True, help="output folder (created)")
+    run.add_argument("--out", type=Path, default=None, help="output folder (created; required unless --resume)")
     run.add_argument("--max-steps", type=_positive_int, default=None,
                      help="stop after this many filter steps (scans or keyframes)")
     run.add_argument("--set", dest="overrides", type=_override, action="append", default=[], metavar="NAME=VALUE",
@@ -95,8 +95,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",
-                     help="save the full filter state every N steps to OUT/checkpoint (atomic)")
-    run.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint")
+                     help="save the full filter state (particles, maps, weights, position in the log) every N "
+                          "steps to OUT/checkpoint.npz, atomically")
+    run.add_argument("--resume", type=Path, default=None, metavar="DIR",
+                     help="continue the run saved in DIR (its checkpoint.npz and run.json) with its original "
+                          "arguments; the result equals an uninterrupted run")
     run.add_argument("--chunk", type=_positive_int, default=None,
                      help="steps per compiled chunk (progress-bar granularity)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -130,14 +130,15 @@ def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
             raise RunError(f"--set {name}: parameter {name!r} is not a single number and cannot be set here")
 
 
-def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots):
+def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
+                 checkpoint=None):
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.trajectory_io import write_tum
 
     sequence = _load_landmark_sequence(info, max_steps, seed)
     result = run_landmark_slam(
         sequence, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
-        progress=progress, chunk=chunk or 512, dtype=dtype,
+        progress=progress, chunk=chunk or 512, dtype=dtype, checkpoint=checkpoint,
     )
     summary: dict[str, Any] = {
         "algorithm": algorithm, "dataset": info.name, "particles": particles, "seed": seed,
@@ -198,7 +199,8 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 # --------------------------------------------------------------------------- grid
 
 
-def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots):
+def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
+             checkpoint=None):
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.trajectory_io import write_tum
 
@@ -214,6 +216,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     result = grid_experiment.run_grid_slam(
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
         progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
+        **({"checkpoint": checkpoint} if checkpoint is not None else {}),
     )
     summary: dict[str, Any] = {
         "algorithm": algorithm, "dataset": name, "particles": particles, "seed": seed,
@@ -260,8 +263,16 @@ def run(
     chunk: int | None = None,
     float64: bool = False,
     plots: bool = True,
+    checkpoint_every: int | None = None,
+    resume: bool = False,
 ) -> dict[str, Any]:
-    """Run one filter and write its output folder; returns the summary dict."""
+    """Run one filter and write its output folder; returns the summary dict.
+
+    With ``checkpoint_every`` the full filter state is saved atomically to
+    ``out/checkpoint.npz`` every that many steps; ``resume`` continues from it (and
+    refuses a checkpoint of a different run). The run's arguments are recorded in
+    ``out/run.json`` so that ``jaxslam run --resume OUT`` needs nothing else.
+    """
     import jax
     import jax.numpy as jnp
 
@@ -282,12 +293,27 @@ def run(
     dtype = jnp.float64 if float64 else jnp.float32
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    dataset_name = info.name if info is not None else str(Path(path).resolve())
+    run_args = {"dataset": dataset_name, "algorithm": algorithm, "particles": particles, "seed": seed,
+                "max_steps": max_steps, "overrides": overrides, "float64": float64, "chunk": chunk}
+    checkpoint = None
+    if checkpoint_every is not None or resume:
+        from jaxslam.checkpoint import Checkpoint
+
+        fingerprint = {k: v for k, v in run_args.items() if k != "chunk"}
+        checkpoint = Checkpoint(out / "checkpoint.npz", every=checkpoint_every, fingerprint=fingerprint,
+                                resume=resume)
+        if resume and not checkpoint.path.exists():
+            raise RunError(f"--resume: no checkpoint in {str(out)!r} (run with --checkpoint-every N first)")
+    if not resume:
+        write_json(out / "run.json", run_args)
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
     if kind == "laser":
         args = (info, path) + args[1:]
-    summary = runner(*args)
+    summary = runner(*args, checkpoint=checkpoint)
+    summary["resumed"] = bool(resume)
     summary["overrides"] = overrides
     summary["total_s"] = time.time() - started
     summary["jaxslam_version"] = __import__("jaxslam").__version__
@@ -305,12 +331,22 @@ def run_from_args(args) -> dict[str, Any] | None:
         for name, default in _param_fields(algorithm).items():
             print(f"{name:24s} {default!r}")
         return None
-    if args.checkpoint_every or args.resume:
-        raise RunError("--checkpoint-every/--resume are not available yet for this algorithm")
+    if args.resume is not None:
+        saved = args.resume / "run.json"
+        if not saved.exists():
+            raise RunError(f"--resume {str(args.resume)!r}: no run.json there; is it a `jaxslam run` output folder?")
+        try:
+            run_args = json.loads(saved.read_text())
+        except json.JSONDecodeError as err:
+            raise DataFormatError(saved, err.lineno, f"not valid JSON: {err.msg}") from None
+        return run(out=args.resume, progress=not args.no_progress, plots=not args.no_plots,
+                   checkpoint_every=args.checkpoint_every, resume=True, **run_args)
+    if args.out is None:
+        raise RunError("--out is required (the folder the outputs go to)")
     return run(
         out=args.out, dataset=args.dataset, algorithm=args.algorithm, particles=args.particles, seed=args.seed,
         max_steps=args.max_steps, overrides=_overrides_dict(args.overrides), progress=not args.no_progress,
-        chunk=args.chunk, float64=args.float64, plots=not args.no_plots,
+        chunk=args.chunk, float64=args.float64, plots=not args.no_plots, checkpoint_every=args.checkpoint_every,
     )
 
 

@@ -138,3 +138,33 @@ def test_console_script_entry_point():
     result = subprocess.run([sys.executable, "-m", "jaxslam.cli", "datasets"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert np.any(["sim-laser" in line for line in result.stdout.splitlines()])
+
+
+def test_interrupted_run_resumes_to_identical_outputs(tmp_path, monkeypatch, capsys):
+    from jaxslam import checkpoint as ckpt
+
+    common = ("--particles", "6", "--max-steps", "60", "--no-progress", "--no-plots", "--seed", "3")
+    straight = tmp_path / "straight"
+    assert run_cli("run", "--out", str(straight), *common) == 0
+
+    original_save = ckpt.Checkpoint.save
+
+    def save_then_crash(self, carry, done, leaves):
+        original_save(self, carry, done, leaves)
+        if done == 40:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(ckpt.Checkpoint, "save", save_then_crash)
+    interrupted = tmp_path / "interrupted"
+    assert run_cli("run", "--out", str(interrupted), "--checkpoint-every", "20", *common) == 130
+    assert not (interrupted / "summary.json").exists()
+    monkeypatch.setattr(ckpt.Checkpoint, "save", original_save)
+    assert run_cli("run", "--resume", str(interrupted), "--no-progress", "--no-plots") == 0
+    assert (interrupted / "trajectory.tum").read_text() == (straight / "trajectory.tum").read_text()
+    assert (interrupted / "landmarks.csv").read_text() == (straight / "landmarks.csv").read_text()
+    assert json.loads((interrupted / "summary.json").read_text())["resumed"] is True
+
+    # resuming a folder without a checkpoint is a clear error
+    capsys.readouterr()
+    assert run_cli("run", "--resume", str(straight)) == 2
+    assert "no checkpoint" in capsys.readouterr().err
