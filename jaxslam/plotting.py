@@ -73,8 +73,19 @@ def plot_landmark_slam(
 
 
 def plot_grid_map(log_odds, resolution: float, origin, trajectory=None, title: str = ""):
-    """An occupancy map (log-odds, rows = y) with the trajectory over it."""
+    """An occupancy map (log-odds, rows = y) with the trajectory over it.
+
+    The view is cropped to the observed cells (non-zero log-odds) plus a 1 m margin.
+    """
     log_odds = np.asarray(log_odds, float)
+    observed = np.abs(log_odds) > 1e-6
+    if observed.any():
+        pad = int(np.ceil(1.0 / resolution))
+        rows, cols = np.nonzero(observed.any(1))[0], np.nonzero(observed.any(0))[0]
+        r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, log_odds.shape[0])
+        c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, log_odds.shape[1])
+        log_odds = log_odds[r0:r1, c0:c1]
+        origin = (origin[0] + c0 * resolution, origin[1] + r0 * resolution)
     prob = 1.0 / (1.0 + np.exp(-log_odds))
     h, w = prob.shape
     extent = [origin[0], origin[0] + w * resolution, origin[1], origin[1] + h * resolution]

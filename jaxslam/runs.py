@@ -112,11 +112,25 @@ def _truncate(sequence, max_steps: int):
 
 
 def _param_fields(algorithm: str) -> dict[str, Any]:
+    """Each ``Params`` field of the algorithm with its default (scalars as floats)."""
     if _kind_of(algorithm) == "landmark":
         from jaxslam.feature.params import Params
+
+        defaults = Params()
     else:
-        from jaxslam.grid.common import GridSlamParams as Params
-    return {name: getattr(Params(), name, None) for name in Params._fields}
+        from jaxslam.grid.common import default_params
+
+        defaults = default_params(np.zeros(1, np.float32))
+    values = {}
+    for name in defaults._fields:
+        value = getattr(defaults, name)
+        if np.ndim(value) == 0 and not isinstance(value, tuple):
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                pass
+        values[name] = value
+    return values
 
 
 def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
@@ -238,7 +252,9 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     if hasattr(log, "true_poses"):
         errors = np.linalg.norm(result.trajectory[:, :2] - np.asarray(log.true_poses)[:, :2], axis=1)
         summary.update({"pos_err_mean_m": float(errors.mean()), "pos_err_max_m": float(errors.max())})
-    grid_experiment.export_map(result, out / "map")
+    from jaxslam.grid.export import save_map
+
+    save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
     np.savez_compressed(
         out / "arrays.npz", kind="laser", times=result.scan_times, trajectory=result.trajectory,
         log_odds=result.map_log_odds, resolution=result.resolution, origin=np.asarray(result.origin),
