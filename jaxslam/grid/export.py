@@ -1,0 +1,169 @@
+"""Map export: PGM + YAML in the ROS ``map_server`` convention, and PNG.
+
+``map_server`` reads a greyscale image and a YAML file::
+
+    image: map.pgm
+    resolution: 0.05          # m / pixel
+    origin: [x, y, 0.0]       # world pose of the lower-left pixel
+    negate: 0
+    occupied_thresh: 0.65
+    free_thresh: 0.196
+
+With ``negate: 0`` a pixel value ``v`` means occupancy ``(255 - v) / 255``. As
+``map_saver`` does, cells are written trinary: occupied (``p > occupied_thresh``) as
+0, free (``p < free_thresh``) as 254 and unknown as 205. The image's first row is the
+top of the map (largest ``y``), so the grid (row 0 at ``origin`` y) is flipped.
+
+Host-side NumPy; the PNG is written with ``zlib`` (no imaging dependency).
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+OCCUPIED, FREE, UNKNOWN = 0, 254, 205
+
+
+def occupancy_image(log_odds: np.ndarray, occupied_thresh: float = 0.65, free_thresh: float = 0.196) -> np.ndarray:
+    """``uint8`` image (top row = largest y) of a natural log-odds grid ``(H, W)``."""
+    lo = np.asarray(log_odds, np.float64)
+    p = 1.0 / (1.0 + np.exp(-lo))
+    img = np.full(lo.shape, UNKNOWN, np.uint8)
+    img[p > occupied_thresh] = OCCUPIED
+    img[p < free_thresh] = FREE
+    return np.ascontiguousarray(img[::-1])
+
+
+def write_pgm(path: os.PathLike | str, image: np.ndarray) -> None:
+    """Binary PGM (P5, maxval 255)."""
+    image = np.asarray(image, np.uint8)
+    h, w = image.shape
+    with open(path, "wb") as f:
+        f.write(f"P5\n# jaxslam map\n{w} {h}\n255\n".encode("ascii"))
+        f.write(image.tobytes())
+
+
+def read_pgm(path: os.PathLike | str) -> np.ndarray:
+    """Read a binary PGM written by :func:`write_pgm` (or any P5 with maxval 255)."""
+    data = Path(path).read_bytes()
+    tokens = []
+    pos = 0
+    while len(tokens) < 4:
+        while data[pos : pos + 1].isspace():
+            pos += 1
+        if data[pos : pos + 1] == b"#":
+            pos = data.index(b"\n", pos) + 1
+            continue
+        end = pos
+        while not data[end : end + 1].isspace():
+            end += 1
+        tokens.append(data[pos:end])
+        pos = end
+    if tokens[0] != b"P5" or int(tokens[3]) != 255:
+        raise ValueError(f"{path}: not an 8-bit binary PGM")
+    w, h = int(tokens[1]), int(tokens[2])
+    pos += 1
+    return np.frombuffer(data[pos : pos + w * h], np.uint8).reshape(h, w)
+
+
+def write_png(path: os.PathLike | str, image: np.ndarray) -> None:
+    """8-bit greyscale (``(H, W)``) or RGB (``(H, W, 3)``) PNG."""
+    image = np.asarray(image, np.uint8)
+    if image.ndim == 2:
+        color, channels = 0, 1
+    elif image.ndim == 3 and image.shape[2] == 3:
+        color, channels = 2, 3
+    else:
+        raise ValueError(f"image must be (H, W) or (H, W, 3), got {image.shape}")
+    h, w = image.shape[:2]
+    raw = np.concatenate([np.zeros((h, 1), np.uint8), image.reshape(h, w * channels)], 1).tobytes()
+
+    def chunk(kind: bytes, payload: bytes) -> bytes:
+        return struct.pack(">I", len(payload)) + kind + payload + struct.pack(">I", zlib.crc32(kind + payload) & 0xFFFFFFFF)
+
+    png = b"\x89PNG\r\n\x1a\n"
+    png += chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, color, 0, 0, 0))
+    png += chunk(b"IDAT", zlib.compress(raw, 6))
+    png += chunk(b"IEND", b"")
+    Path(path).write_bytes(png)
+
+
+def write_map_yaml(
+    path: os.PathLike | str,
+    image_name: str,
+    resolution: float,
+    origin: tuple[float, float],
+    occupied_thresh: float = 0.65,
+    free_thresh: float = 0.196,
+) -> None:
+    """The ``map_server`` YAML next to an image."""
+    text = (
+        f"image: {image_name}\n"
+        f"resolution: {float(resolution):.6f}\n"
+        f"origin: [{float(origin[0]):.6f}, {float(origin[1]):.6f}, 0.000000]\n"
+        f"negate: 0\n"
+        f"occupied_thresh: {occupied_thresh}\n"
+        f"free_thresh: {free_thresh}\n"
+    )
+    Path(path).write_text(text)
+
+
+def save_map(
+    out_dir: os.PathLike | str,
+    log_odds: np.ndarray,
+    resolution: float,
+    origin: tuple[float, float],
+    name: str = "map",
+    occupied_thresh: float = 0.65,
+    free_thresh: float = 0.196,
+    trajectory: np.ndarray | None = None,
+) -> dict[str, Path]:
+    """Write ``name.pgm``, ``name.yaml`` and ``name.png`` into ``out_dir``.
+
+    Args:
+        out_dir: folder (created if missing).
+        log_odds: ``(H, W)`` natural log-odds, row 0 at ``origin`` y.
+        resolution: m per cell.
+        origin: world ``(x, y)`` of the lower-left corner of cell (0, 0).
+        name: file stem.
+        occupied_thresh, free_thresh: ``map_server`` thresholds.
+        trajectory: optional ``(T, 2+)`` path drawn in red on the PNG only.
+
+    Returns:
+        The paths written, keyed ``pgm``, ``yaml``, ``png``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    image = occupancy_image(log_odds, occupied_thresh, free_thresh)
+    paths = {"pgm": out / f"{name}.pgm", "yaml": out / f"{name}.yaml", "png": out / f"{name}.png"}
+    write_pgm(paths["pgm"], image)
+    write_map_yaml(paths["yaml"], paths["pgm"].name, resolution, origin, occupied_thresh, free_thresh)
+    png = image
+    if trajectory is not None:
+        rgb = np.repeat(image[..., None], 3, -1)
+        traj = np.asarray(trajectory, np.float64)[:, :2]
+        cols = np.floor((traj[:, 0] - origin[0]) / resolution).astype(int)
+        rows = image.shape[0] - 1 - np.floor((traj[:, 1] - origin[1]) / resolution).astype(int)
+        ok = (cols >= 0) & (cols < image.shape[1]) & (rows >= 0) & (rows < image.shape[0])
+        rgb[rows[ok], cols[ok]] = (220, 30, 30)
+        png = rgb
+    write_png(paths["png"], png)
+    return paths
+
+
+__all__ = [
+    "FREE",
+    "OCCUPIED",
+    "UNKNOWN",
+    "occupancy_image",
+    "read_pgm",
+    "save_map",
+    "write_map_yaml",
+    "write_pgm",
+    "write_png",
+]

@@ -1,0 +1,250 @@
+r"""SRUPF-GM: square-root unscented particle filter for grid maps.
+
+Zandara & Nicholson, "Square Root Unscented Particle Filtering for Grid Mapping",
+AI 2009, Algorithm 2. Per particle :math:`i` with pose :math:`x` and lower factor
+:math:`S` (:math:`P = S S^T`):
+
+*Odometry update* (eqs. 1-9; :func:`jaxslam.models.odometry.sqrt_unscented_predict`):
+sigma points of :math:`[x; 0]` with factor :math:`\mathrm{diag}(S, \sqrt Q)`, pushed
+through ``f``; mean :math:`\mu` (6), :math:`S = \mathrm{qr}[\sqrt{W^c_{1..2n}}
+(\overline{sp}_i - \mu)]` (7) and a rank-1 update with the zeroth deviation (8).
+
+*Measurement update* (eqs. 10-16), with the corrected pose :math:`\nu`:
+
+* ``"pc"``: :math:`\nu` from the pose corrector started at :math:`\mu`, searching
+  inside the covariance ellipse (:func:`jaxslam.grid.matching.ellipse_match`);
+* ``"npc"``: :math:`\nu = h(\overline{sp}_i, z)` is the best-scoring propagated
+  sigma point (10).
+
+.. math::
+    \Sigma^{\mu\nu} &= \textstyle\sum_i W^c_i (\overline{sp}_i - \mu)
+        (\overline{sp}_i - \nu)^T && (11) \\
+    S_\nu &= \mathrm{qr}\big[\sqrt{W^c_{1..2n}} (\overline{sp}_i - \nu),\
+        \sqrt R\big] && (12) \\
+    S_\nu &= \mathrm{cholupdate}(S_\nu, \sqrt{|W^c_0|}(\overline{sp}_0 - \nu),
+        \mathrm{sgn}\, W^c_0) && (13) \\
+    K &= \Sigma^{\mu\nu} (S_\nu S_\nu^T)^{-1} && (14) \\
+    \mu &= \nu && (15) \\
+    S &= \mathrm{cholupdate}(S, K S_\nu, -1)\ \text{(one downdate per column)} && (16)
+
+The paper's eq. (12) has no measurement noise; then (16) removes the whole spread
+(for :math:`\nu = \mu`, :math:`K S_\nu = S`) and a resampled particle's copies would
+never separate again. ``match_noise`` (:math:`\sqrt R`, the spread of the
+corrector's pose) restores a proper Kalman update, :math:`P^+ \approx P (P + R)^{-1}
+R \succ 0`; ``match_noise = 0`` gives the literal equations, where
+:func:`jaxslam.core.sqrt.chol_update` clamps the lost pivots (``Info.pd_ok`` is False).
+
+*Sampling.* The paper places the random draw twice: Sec. 3.1 samples
+:math:`x \sim \mathcal N(\mu, S S^T)` at the end of the odometry update (eq. 9)
+and Sec. 3.2 says that no sampling follows the scan matching, while Algorithm 2
+samples at the very end (``sample_new_pose``). ``config.sampling = "prior"`` follows
+the text: the corrector starts from the eq. (9) sample (its ellipse from
+:math:`S`), and the particle stays at :math:`\nu`. ``"posterior"`` follows
+Algorithm 2 literally: the corrector starts at :math:`\mu` and the particle moves to
+:math:`x \sim \mathcal N(\nu, S^+ S^{+T})` after the update. Either way the map is
+built at :math:`\nu`. With ``"posterior"`` the copies of a resampled particle only
+separate by the small posterior spread, so ``"prior"`` is the default for ``pc``;
+``npc`` (no corrector) uses ``"posterior"``. Weights, map integration and selective
+resampling are as in GMapping (:func:`jaxslam.grid.common.finish_step`).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+from jax.scipy.linalg import cho_solve
+
+from jaxslam.core import se2
+from jaxslam.core.sigma import UTParams
+from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
+from jaxslam.grid.common import (
+    GridSlamConfig,
+    GridSlamInfo,
+    GridSlamParams,
+    GridSlamState,
+    Odometry,
+    Scan,
+    as_odometry,
+    finish_step,
+    init,
+    match_geometry,
+    score_model,
+)
+from jaxslam.grid.matching import get_matcher
+from jaxslam.grid.score import make_score_fn, scan_log_likelihood
+from jaxslam.models.odometry import (
+    Prediction,
+    motion_noise_sqrt,
+    sqrt_unscented_predict,
+)
+
+
+class MeasurementUpdate(NamedTuple):
+    """Result of eqs. (11)-(16) for one particle."""
+
+    mean: Array  # (3,) = nu
+    sqrt_cov: Array  # (3, 3) lower
+    gain: Array  # (3, 3) K
+    innovation_sqrt_cov: Array  # (3, 3) S_nu
+    pd_ok: Array  # () bool
+
+
+def sqrt_measurement_update(prediction: Prediction, nu: Array, match_noise_sqrt: Array) -> MeasurementUpdate:
+    """Eqs. (11)-(16) of Zandara & Nicholson for one particle (see module docstring)."""
+    points = prediction.propagated
+    wc = prediction.cov_weights
+    dev_mu = se2.pose_residual(points, prediction.mean)
+    dev_nu = se2.pose_residual(points, nu)
+    cross = jnp.einsum("i,ij,ik->jk", wc, dev_mu, dev_nu)  # (11)
+    weighted = jnp.sqrt(wc[1:])[:, None] * dev_nu[1:]  # (2n, 3)
+    stacked = jnp.concatenate([weighted.T, match_noise_sqrt.astype(points.dtype)], -1)
+    s_nu = tria(stacked)  # (12)
+    s_nu = chol_update(s_nu, jnp.sqrt(jnp.abs(wc[0])) * dev_nu[0], jnp.sign(wc[0]))  # (13)
+    gain = cho_solve((s_nu, True), cross.T).T  # (14)
+    columns = gain @ s_nu
+    sqrt_cov, ok = chol_update_many_checked(prediction.sqrt_cov, columns.T, -1.0)  # (16)
+    return MeasurementUpdate(nu, sqrt_cov, gain, s_nu, ok)
+
+
+def ut_params(params: GridSlamParams) -> UTParams:
+    return UTParams(params.ut_alpha, params.ut_beta, params.ut_kappa)
+
+
+def predict(pose: Array, pose_sqrt_cov: Array, control: Array, params: GridSlamParams) -> Prediction:
+    """Odometry update, eqs. (1)-(8), for one particle."""
+    noise_sqrt = motion_noise_sqrt(
+        control,
+        params.q_linear,
+        params.q_angular,
+        params.q_linear_per_m,
+        params.q_angular_per_rad,
+        params.q_angular_per_m,
+    )
+    return sqrt_unscented_predict(pose, pose_sqrt_cov, control, noise_sqrt, ut_params(params))
+
+
+def particle_update(
+    key: Array,
+    grid: Array,
+    pose: Array,
+    pose_sqrt_cov: Array,
+    control: Array,
+    local_points: Array,
+    mask: Array,
+    params: GridSlamParams,
+    config: GridSlamConfig,
+):
+    """Algorithm 2 for one particle: returns ``(nu, next_pose, S, score, log_lik, pd_ok)``.
+
+    ``config.sampling`` places the random draw (see the module docstring):
+    ``"prior"`` draws ``x ~ N(mu, S S^T)`` after the odometry update (eq. 9) and
+    starts the corrector there (then ``next_pose = nu``); ``"posterior"`` starts at
+    ``mu`` and draws the next pose around ``nu`` after the measurement update
+    (Algorithm 2, last line).
+    """
+    dtype = pose.dtype
+    prediction = predict(pose, pose_sqrt_cov, control, params)
+    model = score_model(params)
+    kernel = config.score_kernel
+    score_fn = make_score_fn(
+        grid, local_points, mask, params.laser_offset, config.spec, model, kernel, config.free_check
+    )
+    count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
+    key_prior, key_post = jax.random.split(key)
+    if config.sampling == "prior":
+        start = prediction.mean + prediction.sqrt_cov @ jax.random.normal(key_prior, (3,), dtype)
+        start = start.at[2].set(se2.wrap_angle(start[2]))
+    elif config.sampling == "posterior":
+        start = prediction.mean
+    else:
+        raise ValueError(f"sampling must be 'prior' or 'posterior', got {config.sampling!r}")
+    if config.correction == "pc":
+        matcher = get_matcher(config.matcher)
+        best, best_score = matcher(
+            score_fn,
+            start,
+            prediction.sqrt_cov,
+            params,
+            config.match_iterations,
+            config.refine_steps,
+            prior_mean=prediction.mean,
+        )
+        accept = best_score / count > params.min_score
+        nu = jnp.where(accept, best, start)
+    elif config.correction == "npc":
+        scores = score_fn(prediction.propagated)
+        nu = prediction.propagated[jnp.argmax(scores)]
+    else:
+        raise ValueError(f"correction must be 'pc' or 'npc', got {config.correction!r}")
+    update = sqrt_measurement_update(prediction, nu, jnp.diag(params.match_noise.astype(dtype)))
+    log_lik, score = scan_log_likelihood(
+        grid, nu, local_points, mask, params.laser_offset, config.spec, model, kernel, config.free_check
+    )
+    if config.sampling == "posterior":
+        next_pose = nu + update.sqrt_cov @ jax.random.normal(key_post, (3,), dtype)
+        next_pose = next_pose.at[2].set(se2.wrap_angle(next_pose[2]))
+    else:
+        next_pose = nu
+    return nu, next_pose, update.sqrt_cov, score / count, log_lik, update.pd_ok
+
+
+def step(
+    key: Array,
+    state: GridSlamState,
+    control: Odometry | Array,
+    observation: Scan,
+    params: GridSlamParams,
+    config: GridSlamConfig,
+) -> tuple[GridSlamState, GridSlamInfo]:
+    """One SRUPF-GM update (Algorithm 2) for a keyframe.
+
+    Args:
+        key: PRNG key for this step.
+        state: filter state.
+        control: :class:`Odometry` or a bare ``(3,)`` increment since the previous
+            keyframe (Q is per keyframe; ``substeps`` is not used).
+        observation: the keyframe's scan.
+        params: traced parameters.
+        config: static configuration (``config.correction`` picks pc / npc).
+    """
+    key_sample, key_resample = jax.random.split(key)
+    n = config.num_particles
+    control = as_odometry(control).increment.astype(state.poses.dtype)
+    keys = jax.random.split(key_sample, n)
+    local_points, mask = match_geometry(observation, params, config)
+
+    def particle(k, grid, pose, sqrt_cov):
+        return particle_update(k, grid, pose, sqrt_cov, control, local_points, mask, params, config)
+
+    nu, samples, sqrt_covs, scores, log_liks, ok = jax.vmap(particle)(
+        keys, state.grids, state.poses, state.pose_sqrt_covs
+    )
+    return finish_step(
+        key_resample, state, nu, samples, sqrt_covs, log_liks, scores, ok, observation, params, config
+    )
+
+
+@partial(jax.jit, static_argnames=("config",), donate_argnames=("state",))
+def run(
+    key: Array,
+    state: GridSlamState,
+    controls: Odometry | Array,
+    observations: Scan,
+    params: GridSlamParams,
+    config: GridSlamConfig,
+) -> tuple[GridSlamState, GridSlamInfo]:
+    """Scan :func:`step` over keyframes: ``controls`` stacked over ``T``, ``observations (T, B)``."""
+    keys = jax.random.split(key, observations.ranges.shape[0])
+
+    def body(carry, inputs):
+        k, u, z = inputs
+        return step(k, carry, u, z, params, config)
+
+    return jax.lax.scan(body, state, (keys, controls, observations))
+
+
+__all__ = ["MeasurementUpdate", "init", "particle_update", "predict", "run", "sqrt_measurement_update", "step"]

@@ -1,0 +1,44 @@
+"""run_grid_slam end to end: simulated log, and a short real CARMEN log."""
+
+import numpy as np
+import pytest
+
+from jaxslam.datasets.laser_sim import simulate
+from jaxslam.datasets.paths import DatasetNotFoundError
+from jaxslam.grid.experiment import run_grid_slam
+
+
+def test_run_grid_slam_on_simulation():
+    log = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.6, num_beams=91, seed=2)
+    result = run_grid_slam(log, "srupf-gm", particles=4, seed=0, progress=False, linear_update=0.5,
+                           angular_update=0.3, margin=3.0, config={"match_iterations": 6})
+    s = log.num_scans
+    assert result.trajectory.shape == (s, 3) and result.scan_times.shape == (s,)
+    # keyframes keep their corrected pose exactly in the per-scan trajectory
+    np.testing.assert_allclose(result.trajectory[result.keyframes], result.keyframe_poses, atol=1e-9)
+    err = np.hypot(*(result.trajectory[:, :2] - log.true_poses[:, :2]).T)
+    assert err.mean() < 0.1
+    h, w = result.map_log_odds.shape
+    assert (h, w) == (result.config.spec.height, result.config.spec.width)
+    assert result.map_log_odds.dtype == np.float32 and (result.map_log_odds > 0).any()
+    summary = result.summary()
+    for key in ("algorithm", "dataset", "particles", "seed", "scans", "keyframes", "wall_s", "compile_s",
+                "resamplings"):
+        assert key in summary
+    assert summary["keyframes"] == len(result.keyframes) and summary["scans"] == s
+    assert set(result.info) >= {"ess", "resampled", "mean_score", "dropped_points"}
+    assert result.info["ess"].shape == (len(result.keyframes) - 1,)
+
+
+def test_short_real_log_run():
+    """A few keyframes of the raw Intel log (skipped when the data is not staged)."""
+    try:
+        result = run_grid_slam("intel", "gmapping", particles=4, seed=0, progress=False, max_keyframes=12)
+    except DatasetNotFoundError:
+        pytest.skip("intel log not available")
+    assert result.trajectory.shape == (13631, 3)
+    assert np.all(np.isfinite(result.trajectory))
+    assert result.summary()["keyframes"] == 12
+    assert int(result.info["dropped_points"].max()) == 0
+    # the filter stays near odometry over the first metres (a gross failure would not)
+    assert np.abs(result.keyframe_poses[:, :2]).max() < 5.0

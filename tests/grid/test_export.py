@@ -1,0 +1,73 @@
+"""Map export: ROS map_server PGM + YAML, and PNG."""
+
+import struct
+import zlib
+
+import numpy as np
+
+from jaxslam.grid.export import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    occupancy_image,
+    read_pgm,
+    save_map,
+)
+
+
+def test_occupancy_image_thresholds_and_orientation():
+    log_odds = np.array([[3.0, -3.0, 0.0], [0.0, 0.0, 0.0]])  # row 0 = bottom (smallest y)
+    img = occupancy_image(log_odds)
+    assert img.dtype == np.uint8
+    # flipped: the bottom grid row is the last image row
+    np.testing.assert_array_equal(img[-1], [OCCUPIED, FREE, UNKNOWN])
+    np.testing.assert_array_equal(img[0], [UNKNOWN] * 3)
+    # map_server (negate 0): occupancy = (255 - v) / 255
+    assert (255 - OCCUPIED) / 255 > 0.65 and (255 - FREE) / 255 < 0.196
+    assert 0.196 <= (255 - UNKNOWN) / 255 <= 0.65
+
+
+def _png_pixels(data: bytes) -> np.ndarray:
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, header = 8, b"", None
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        kind = data[pos + 4 : pos + 8]
+        payload = data[pos + 8 : pos + 8 + length]
+        (crc,) = struct.unpack(">I", data[pos + 8 + length : pos + 12 + length])
+        assert crc == zlib.crc32(kind + payload) & 0xFFFFFFFF
+        if kind == b"IHDR":
+            header = struct.unpack(">IIBBBBB", payload)
+        elif kind == b"IDAT":
+            idat += payload
+        pos += 12 + length
+    w, h, _depth, color = header[:4]
+    channels = 1 if color == 0 else 3
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * channels)
+    assert np.all(raw[:, 0] == 0)
+    return raw[:, 1:].reshape(h, w, channels).squeeze()
+
+
+def test_save_map_roundtrip(tmp_path):
+    rng = np.random.default_rng(0)
+    log_odds = rng.normal(0, 2, (7, 11))
+    paths = save_map(tmp_path / "out", log_odds, 0.05, (-1.25, 3.5))
+    pgm = read_pgm(paths["pgm"])
+    np.testing.assert_array_equal(pgm, occupancy_image(log_odds))
+    yaml = paths["yaml"].read_text()
+    assert "image: map.pgm" in yaml
+    assert "resolution: 0.050000" in yaml
+    assert "origin: [-1.250000, 3.500000, 0.000000]" in yaml
+    assert "negate: 0" in yaml and "occupied_thresh: 0.65" in yaml and "free_thresh: 0.196" in yaml
+    png = _png_pixels(paths["png"].read_bytes())
+    np.testing.assert_array_equal(png, pgm)
+
+
+def test_png_with_trajectory(tmp_path):
+    log_odds = np.zeros((10, 10))
+    traj = np.array([[0.02, 0.02, 0.0], [0.42, 0.42, 0.0]])
+    paths = save_map(tmp_path, log_odds, 0.05, (0.0, 0.0), trajectory=traj)
+    rgb = _png_pixels(paths["png"].read_bytes())
+    assert rgb.shape == (10, 10, 3)
+    assert tuple(rgb[9, 0]) == (220, 30, 30)  # (0.02, 0.02) is the bottom-left cell
+    assert tuple(rgb[1, 8]) == (220, 30, 30)

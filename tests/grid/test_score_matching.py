@@ -1,0 +1,164 @@
+"""Map evidence kernels against NumPy, and scan matchers on a synthetic map."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxslam.datasets.laser_sim import office_world, raycast
+from jaxslam.grid.common import GridSlamParams, default_params, score_model
+from jaxslam.grid.map import GridSpec, init_grids
+from jaxslam.grid.matching import EllipseBound, get_matcher, hill_climb
+from jaxslam.grid.score import (
+    ScoreModel,
+    beam_points,
+    bilinear_occupancy,
+    gaussian_nearest_occupancy,
+    gaussian_window_occupancy,
+    make_score_fn,
+    scan_log_likelihood,
+)
+from jaxslam.grid.update import update_grids
+
+SPEC = GridSpec(height=24, width=30, resolution=0.1, origin_x=-1.0, origin_y=-0.5)
+
+
+def np_occ(grid, col, row, sat):
+    if 0 <= col < grid.shape[1] and 0 <= row < grid.shape[0]:
+        return np.clip(grid[row, col], 0, sat) / sat
+    return 0.0
+
+
+def np_bilinear(grid, x, y, spec, sat):
+    u = (x - spec.origin_x) / spec.resolution - 0.5
+    v = (y - spec.origin_y) / spec.resolution - 0.5
+    c, r = int(np.floor(u)), int(np.floor(v))
+    fx, fy = u - c, v - r
+    return (
+        (1 - fx) * (1 - fy) * np_occ(grid, c, r, sat)
+        + fx * (1 - fy) * np_occ(grid, c + 1, r, sat)
+        + (1 - fx) * fy * np_occ(grid, c, r + 1, sat)
+        + fx * fy * np_occ(grid, c + 1, r + 1, sat)
+    )
+
+
+def bump(x):
+    return max(1 - x / 4, 0.0) ** 4
+
+
+def np_window(grid, x, y, spec, sat, sigma, half):
+    """Max over the (2 half + 1)^2 cells around the end point (or its 2x2 stencil)."""
+    u = (x - spec.origin_x) / spec.resolution
+    v = (y - spec.origin_y) / spec.resolution
+    if half == 1:
+        c0 = min(max(int(np.floor(u)) - 1, 0), spec.width - 3)
+        r0 = min(max(int(np.floor(v)) - 1, 0), spec.height - 3)
+        cells = [(c0 + i, r0 + j) for i in range(3) for j in range(3)]
+    else:
+        c0 = min(max(int(np.floor(u - 0.5)), 0), spec.width - 2)
+        r0 = min(max(int(np.floor(v - 0.5)), 0), spec.height - 2)
+        cells = [(c0 + i, r0 + j) for i in range(2) for j in range(2)]
+    best = 0.0
+    for c, r in cells:
+        dx2 = ((c + 0.5 - u) * spec.resolution) ** 2 / sigma**2
+        dy2 = ((r + 0.5 - v) * spec.resolution) ** 2 / sigma**2
+        best = max(best, np_occ(grid, c, r, sat) * bump(dx2) * bump(dy2))
+    return best
+
+
+@pytest.mark.parametrize("kernel", ["bilinear", "gaussian2", "gaussian3"])
+def test_evidence_kernels_match_numpy(kernel, dtype):
+    rng = np.random.default_rng(1)
+    grid = rng.integers(-10, 12, SPEC.shape).astype(np.int8)
+    pts = np.stack([rng.uniform(-1.3, 2.3, 200), rng.uniform(-0.8, 2.2, 200)], -1)
+    g, p = jnp.asarray(grid), jnp.asarray(pts, dtype)
+    if kernel == "bilinear":
+        got = bilinear_occupancy(g, p, SPEC, 8.0)
+        want = [np_bilinear(grid, x, y, SPEC, 8.0) for x, y in pts]
+    elif kernel == "gaussian2":
+        got = gaussian_nearest_occupancy(g, p, SPEC, 8.0, 0.07)
+        want = [np_window(grid, x, y, SPEC, 8.0, 0.07, 0) for x, y in pts]
+    else:
+        got = gaussian_window_occupancy(g, p, SPEC, 8.0, 0.07)
+        want = [np_window(grid, x, y, SPEC, 8.0, 0.07, 1) for x, y in pts]
+    assert got.dtype == dtype
+    np.testing.assert_allclose(np.asarray(got), want, atol=1e-5 if dtype == np.float32 else 1e-12)
+
+
+def test_log_likelihood_floor():
+    grid = jnp.zeros(SPEC.shape, jnp.int8)
+    pts = jnp.asarray([[0.5, 0.0], [1.0, 0.2]])
+    ll, score = scan_log_likelihood(
+        grid, jnp.zeros(3), pts, jnp.asarray([True, False]), jnp.zeros(3), SPEC, ScoreModel(8.0, 0.05, 0.01)
+    )
+    np.testing.assert_allclose(float(ll), np.log(0.01), rtol=1e-6)
+    assert float(score) == 0.0
+
+
+# --- scan matching on a synthetic office map -------------------------------------
+
+# Walls of the office lie on multiples of 5 cm; a misaligned origin keeps them off
+# cell boundaries, where a cell-centre score would be biased by half a cell.
+WORLD_SPEC = GridSpec(height=240, width=360, resolution=0.05, origin_x=-1.0137, origin_y=-0.9871)
+
+
+@functools.cache
+def synthetic_map():
+    """A map of the simulated office from exact scans at known poses, and a test scan."""
+    walls = office_world(16.0, 10.0, 2.0, 3, seed=0)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    poses = np.array([[x, 1.0, 0.0] for x in np.arange(1.0, 15.0, 1.0)] + [[15.0, y, np.pi / 2] for y in np.arange(1.0, 9.0, 1.0)])
+    ranges = raycast(walls, poses[:, :2], poses[:, 2:3] + angles, 30.0)
+    valid = np.isfinite(ranges)
+    ranges = np.where(valid, ranges, 0.0)
+    def body(grids, scan):
+        pose, r, v = scan
+        return update_grids(grids, pose[None], r, v, jnp.asarray(angles), jnp.zeros(3), WORLD_SPEC, 40000,
+                            20.0, -1.0, 4.0, 60.0)[0], None
+
+    grids, _ = jax.jit(lambda g, xs: jax.lax.scan(body, g, xs))(
+        init_grids(1, WORLD_SPEC), (jnp.asarray(poses), jnp.asarray(ranges), jnp.asarray(valid))
+    )
+    true_pose = np.array([7.3, 1.1, 0.05])
+    z = raycast(walls, true_pose[None, :2], true_pose[2] + angles[None], 30.0)[0]
+    return grids[0], angles, z, true_pose
+
+
+def params_for(angles) -> GridSlamParams:
+    return default_params(angles, num_particles=1, dtype=jnp.float64)
+
+
+@pytest.mark.parametrize("matcher,kernel", [("hill", "gaussian2"), ("ellipse", "gaussian3"), ("gradient", "bilinear")])
+def test_matcher_recovers_known_offset(matcher, kernel):
+    grid, angles, z, true_pose = synthetic_map()
+    prm = params_for(angles)
+    valid = np.isfinite(z)
+    pts = beam_points(jnp.asarray(np.where(valid, z, 0.0)), jnp.asarray(angles))
+    score_fn = make_score_fn(grid, pts, jnp.asarray(valid), jnp.zeros(3), WORLD_SPEC, score_model(prm), kernel)
+    sqrt_cov = jnp.diag(jnp.asarray([0.08, 0.08, 0.04]))
+    fn = jax.jit(lambda p: get_matcher(matcher)(score_fn, p, sqrt_cov, prm, 12, 0, prior_mean=p))
+    for offset in ([0.06, -0.05, 0.03], [-0.04, 0.07, -0.025], [0.03, 0.03, 0.0]):
+        start = true_pose + np.asarray(offset)
+        best, score = fn(jnp.asarray(start))
+        err = np.asarray(best) - true_pose
+        assert np.hypot(err[0], err[1]) < 0.025, (matcher, offset, err)
+        assert abs(err[2]) < 0.01, (matcher, offset, err)
+        assert float(score) >= float(score_fn(jnp.asarray(start)[None])[0])
+
+
+def test_ellipse_bound_is_respected():
+    """No accepted candidate leaves the Mahalanobis ellipse around the bound centre."""
+    target = jnp.asarray([1.0, 0.0, 0.0])
+
+    def score_fn(poses):  # maximised far outside the ellipse
+        return -jnp.sum((poses - target) ** 2, -1)
+
+    centre = jnp.zeros(3)
+    chol = jnp.diag(jnp.asarray([0.1, 0.1, 0.1]))
+    bound = EllipseBound(centre, chol, jnp.asarray(2.0))
+    best, _, _ = hill_climb(score_fn, centre, jnp.diag(jnp.asarray([0.1, 0.1, 0.1])), 30, bound)
+    maha = float(jnp.linalg.norm(jnp.linalg.solve(chol, best - centre)))
+    assert maha <= 2.0 + 1e-9
+    assert float(best[0]) > 0.15  # it did move towards the target
