@@ -1,7 +1,9 @@
 """Where datasets are found on disk.
 
 The root is ``$JAXSLAM_DATA`` when set, else ``../shared/datasets`` relative to the
-current directory, else ``../shared/datasets`` beside the installed source tree. A
+current directory or the nearest of its parents that has one (so a notebook run
+from ``notebooks/`` finds the same data as the repository root), else
+``../shared/datasets`` beside the source tree. A
 missing file raises :class:`DatasetNotFoundError`, which names the dataset, every
 place that was searched, and how to point ``JAXSLAM_DATA`` at it.
 """
@@ -35,7 +37,12 @@ def candidate_roots() -> list[Path]:
     env = os.environ.get(ENV_VAR)
     if env:
         roots.append(Path(env).expanduser())
-    roots.append(Path.cwd() / ".." / "shared" / "datasets")
+    cwd = Path.cwd()
+    roots.append(cwd / ".." / "shared" / "datasets")
+    for parent in cwd.parents:
+        if (parent / ".." / "shared" / "datasets").is_dir():
+            roots.append(parent / ".." / "shared" / "datasets")
+            break
     roots.append(Path(__file__).resolve().parents[2] / ".." / "shared" / "datasets")
     seen: set[Path] = set()
     unique = []
