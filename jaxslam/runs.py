@@ -163,6 +163,11 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
     }
     finite = bool(np.all(np.isfinite(result.trajectory)))
     summary["finite"] = finite
+    # numerical and input trouble handled inside the filter, counted over the run
+    summary["repairs"] = {name: int(np.sum(result.info[name])) for name in (
+        "num_invalid_controls", "num_invalid_observations", "num_nonfinite_particles",
+        "num_rejected_landmarks", "num_cov_repairs") if name in result.info}
+    summary["input_recovered"] = dict(getattr(sequence, "meta", {}).get("recovered", {}))
     reference_xy = None
     true_landmarks = None
     if info.name == "victoria-park":

@@ -62,6 +62,35 @@ observations of scan ``i``. Step 0 has no motion (it is the initial pose, at the
 scan 0; before the first DR sample the car is at rest). The paper's 30 m perception
 limit is applied as ``range < max_range`` (UFastSLAM: ``OD < perceplimit``).
 
+Input checks and the policy for oddities
+---------------------------------------
+Every loader raises :class:`~jaxslam.datasets.paths.DataFormatError`, naming the file,
+the line (text) or record (``.npz``) and the problem, for: a wrong number of columns; a
+word that is not a number (including ``1_000``, which Python would accept); NaN or
+inf in a time, speed, steering, GPS coordinate or detection; a character that is not
+printable ASCII; times that go backwards (DR, GPS, scan times and raw scans must
+strictly increase, detections must not decrease); a file with no records; a truncated
+or corrupt gzip stream (recognised by its magic bytes, whatever the suffix); an
+``.npz`` that is unreadable, lacks an array, holds non-numeric or differently sized
+arrays; a raw laser stream that is not whole ``1 + 361``-number records; a detection
+with range <= 0, raw bearing outside [0, pi] or negative diameter, or (in
+:func:`load_sequence`) at a time that is no scan time. A missing file raises
+:class:`~jaxslam.datasets.paths.DatasetNotFoundError`. No line is skipped: these
+files are small and clean, and a dropped DR or detection line would silently bend
+the trajectory.
+
+Recoverable oddities are kept, handled by a fixed rule and counted, never silently:
+
+* raw laser ranges above :data:`NO_RETURN_M` (the file's 81.91 m) mean "no
+  reflection"; they stay in ``ranges`` and are counted (``laser_no_return_beams``);
+* raw laser ranges that are NaN, +-inf or <= 0 are replaced by
+  :data:`NO_RETURN_VALUE` (a no return) and counted (``laser_invalid_ranges``);
+* detections at or beyond ``max_range`` are dropped and counted
+  (``observations_beyond_max_range``, also ``n_dropped_range``).
+
+:func:`load_laser` puts its counts in ``LaserScans.meta``; :func:`load_sequence` puts
+those of the source it used in ``meta["recovered"]``.
+
 Note: UFastSLAM skips prediction *and* update whenever the DR speed is exactly 0 (the
 car stands still for the first ~20 s); a filter that wants the same behaviour can test
 ``(controls[i, :, 0] != 0).any()``.
@@ -71,8 +100,10 @@ from __future__ import annotations
 
 import dataclasses
 import gzip
+import io
 import os
 import re
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +127,9 @@ TIME_ZERO_MS = 20967
 
 NO_RETURN_M = 80.0
 """Laser ranges above this are 'no reflection' (the file value is 81.91 m)."""
+
+NO_RETURN_VALUE = 81.91
+"""The file's 'no reflection' range [m]; NaN, inf and non-positive ranges become this."""
 
 N_BEAMS = 361
 BEAM_ANGLES = np.arange(N_BEAMS) * (np.pi / 360.0)
@@ -133,11 +167,16 @@ class GpsFixes:
 
 @dataclasses.dataclass(frozen=True)
 class LaserScans:
-    """Raw scans: ``times`` (S,), ``ranges`` (S, 361) [m], ``angles`` (361,) 0..pi [rad]."""
+    """Raw scans: ``times`` (S,), ``ranges`` (S, 361) [m], ``angles`` (361,) 0..pi [rad].
+
+    ``meta`` holds the file and the counts of the range policy (module docstring):
+    ``laser_no_return_beams`` and ``laser_invalid_ranges``.
+    """
 
     times: np.ndarray
     ranges: np.ndarray
     angles: np.ndarray
+    meta: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,7 +205,8 @@ class VictoriaParkSequence:
         obs_mask: (T, Z) which observation rows are real.
         gps_times: (G,) [s], same time base.
         gps_xy: (G, 2) local east/north [m] (``aa3_gpsx`` ``Lo_m``, ``La_m``).
-        meta: source files, counts and conventions.
+        meta: source files, counts and conventions; ``meta["recovered"]`` counts every
+            recoverable oddity the input policy handled (module docstring).
     """
 
     times: np.ndarray
@@ -185,49 +225,77 @@ class VictoriaParkSequence:
 # --------------------------------------------------------------------------- parsing
 
 
-def _open_text(path: Path):
-    if str(path).endswith(".gz"):
-        return gzip.open(path, "rt", encoding="ascii", errors="replace")
-    return open(path, encoding="ascii", errors="replace")
+_GZIP_MAGIC = b"\x1f\x8b"
+# Printable ASCII and the usual whitespace; anything else (NUL, other control bytes,
+# non-ASCII, which decodes to U+FFFD) is reported as such rather than as a bad number.
+_UNPRINTABLE = re.compile(r"[^\x20-\x7e\t\n\r\v\f]")
+_TOKEN = re.compile(r"\S+")
 
 
-def read_table(path: os.PathLike | str, n_columns: int, what: str) -> np.ndarray:
-    """Read a whitespace-separated numeric table, one record per line.
+class _TruncatedGzip(Exception):
+    """A gzip stream ended early or is corrupt; carries the text decoded so far."""
 
-    Blank lines are skipped. Every problem (wrong column count, a word that is not a
-    number, a non-finite value) raises :class:`DataFormatError` naming the file and line.
+    def __init__(self, text: str, error: Exception):
+        super().__init__(str(error))
+        self.text = text
+        self.error = error
 
-    Args:
-        path: the file (``.gz`` is decompressed).
-        n_columns: the number of numbers each line must hold.
-        what: the column names, for the error message.
 
-    Returns:
-        (N, n_columns) float64.
+def _read_text(path: Path) -> str:
+    """The text of ``path``, gunzipped when it starts with the gzip magic (whatever its
+    suffix), decoded as ASCII with non-ASCII bytes replaced by U+FFFD.
+
+    Raises:
+        DataFormatError: the path is a directory.
+        _TruncatedGzip: the gzip stream is truncated or corrupt.
     """
-    path = Path(path)
-    rows: list[list[float]] = []
-    with _open_text(path) as handle:
-        for line_number, line in enumerate(handle, start=1):
-            words = line.split()
-            if not words:
-                continue
-            if len(words) != n_columns:
-                raise DataFormatError(
-                    path, line_number,
-                    f"expected {n_columns} numbers ({what}), found {len(words)}: {line.strip()[:80]!r}",
-                )
-            try:
-                values = [float(word) for word in words]
-            except ValueError:
-                bad = next(w for w in words if not _is_float(w))
-                raise DataFormatError(path, line_number, f"{bad!r} is not a number") from None
-            if not all(np.isfinite(values)):
-                raise DataFormatError(path, line_number, f"non-finite value in {line.strip()!r}")
-            rows.append(values)
-    if not rows:
-        raise DataFormatError(path, None, f"no records ({what})")
-    return np.asarray(rows, dtype=np.float64)
+    try:
+        with open(path, "rb") as handle:
+            data = handle.read()
+    except IsADirectoryError:
+        raise DataFormatError(path, None, "is a directory, not a data file") from None
+    if data[:2] != _GZIP_MAGIC:
+        return data.decode("ascii", errors="replace")
+    chunks: list[bytes] = []
+    try:
+        with gzip.GzipFile(fileobj=io.BytesIO(data)) as stream:
+            while chunk := stream.read(1 << 20):
+                chunks.append(chunk)
+    except (EOFError, OSError, zlib.error) as error:
+        raise _TruncatedGzip(b"".join(chunks).decode("ascii", errors="replace"), error) from None
+    return b"".join(chunks).decode("ascii", errors="replace")
+
+
+def _gzip_error(path: Path, truncated: _TruncatedGzip, unit: str, complete: int, line: int) -> DataFormatError:
+    error = truncated.error
+    return DataFormatError(
+        path, line,
+        f"gzip stream is truncated or corrupt after {complete} complete {unit} "
+        f"({type(error).__name__}: {error}); re-download the file",
+    )
+
+
+def _first_unprintable(path: Path, text: str) -> None:
+    match = _UNPRINTABLE.search(text)
+    if match is not None:
+        line = text.count("\n", 0, match.start()) + 1
+        raise DataFormatError(path, line, f"unexpected character {match.group()!r} (not printable ASCII)")
+
+
+def _parse_floats(words: list[str]) -> tuple[np.ndarray | None, int | None]:
+    """``(values, None)``, or ``(None, index of the first word that is not a number)``.
+
+    Python's and NumPy's float parsers accept ``1_000``; a data file never means that,
+    so words with an underscore are refused too.
+    """
+    try:
+        values = np.array(words, dtype=np.float64)
+    except ValueError:
+        values = None
+    if values is not None and not any("_" in word for word in words):
+        return values, None
+    bad = next(i for i, word in enumerate(words) if "_" in word or not _is_float(word))
+    return None, bad
 
 
 def _is_float(word: str) -> bool:
@@ -238,26 +306,133 @@ def _is_float(word: str) -> bool:
     return True
 
 
-def _check_increasing(path: Path, times: np.ndarray, strict: bool, first_line: int = 1) -> None:
-    """Raise if ``times`` ever decreases (or repeats, when ``strict``); names the record."""
+def _read_records(path: Path, n_columns: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Parse a line-per-record numeric table; ``(table (N, n_columns), line numbers (N,))``."""
+    try:
+        text = _read_text(path)
+    except _TruncatedGzip as truncated:
+        complete = truncated.text.count("\n")
+        raise _gzip_error(path, truncated, "lines", complete, complete + 1) from None
+    _first_unprintable(path, text)
+    words: list[str] = []
+    line_numbers: list[int] = []
+    for number, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"), start=1):
+        parts = line.split()
+        if not parts:
+            continue
+        if len(parts) != n_columns:
+            raise DataFormatError(
+                path, number, f"expected {n_columns} numbers ({what}), found {len(parts)}: {line.strip()[:80]!r}"
+            )
+        words.extend(parts)
+        line_numbers.append(number)
+    if not line_numbers:
+        raise DataFormatError(path, None, f"no records ({what})")
+    lines = np.asarray(line_numbers, dtype=np.int64)
+    values, bad = _parse_floats(words)
+    if values is None:
+        raise DataFormatError(
+            path, int(lines[bad // n_columns]),
+            f"{words[bad][:40]!r} is not a number (field {bad % n_columns + 1} of {n_columns}: {what})",
+        )
+    finite = np.isfinite(values)
+    if not finite.all():
+        bad = int(np.argmin(finite))
+        raise DataFormatError(
+            path, int(lines[bad // n_columns]),
+            f"non-finite value {words[bad][:40]!r} (field {bad % n_columns + 1} of {n_columns}: {what})",
+        )
+    return values.reshape(-1, n_columns), lines
+
+
+def read_table(path: os.PathLike | str, n_columns: int, what: str) -> np.ndarray:
+    """Read a whitespace-separated numeric table, one record per line.
+
+    Blank lines are skipped; LF, CRLF and CR line ends are accepted; a gzip stream is
+    recognised by its first bytes. Every problem (wrong column count, a word that is not
+    a number, a non-finite value, a character that is not printable ASCII, a truncated
+    or corrupt gzip stream, no records at all) raises :class:`DataFormatError` naming
+    the file and line.
+
+    Args:
+        path: the file.
+        n_columns: the number of numbers each line must hold.
+        what: the column names, for the error message.
+
+    Returns:
+        (N, n_columns) float64.
+    """
+    return _read_records(Path(path), n_columns, what)[0]
+
+
+def _record(lines: np.ndarray | None, k: int) -> tuple[int | None, str]:
+    """Line number of record ``k`` (text files) or ``None`` and a record label (arrays)."""
+    if lines is None:
+        return None, f"record {k + 1}: "
+    return int(lines[k]), ""
+
+
+def _check_increasing(path: Path, times: np.ndarray, strict: bool, lines: np.ndarray | None = None) -> None:
+    """Raise if ``times`` ever decreases (or repeats, when ``strict``); names the line or record."""
     steps = np.diff(times)
     bad = np.nonzero(steps <= 0 if strict else steps < 0)[0]
     if bad.size:
         k = int(bad[0]) + 1
+        line, label = _record(lines, k)
         order = "increase" if strict else "not decrease"
         raise DataFormatError(
-            path, first_line + k,
-            f"time {times[k]:.3f} s after {times[k - 1]:.3f} s: times must {order}",
+            path, line, f"{label}time {times[k]:.3f} s after {times[k - 1]:.3f} s: times must {order}"
         )
 
 
-def _require_arrays(path: Path, archive, names: list[str]) -> dict[str, np.ndarray]:
+def _load_npz(path: Path, names: list[str]) -> dict[str, np.ndarray]:
+    """The named arrays of an ``.npz`` archive as 1-D float64 (or as stored, for 2-D),
+    each checked to be numeric and finite; anything else is a :class:`DataFormatError`."""
+    # A damaged archive fails deep inside zipfile/zlib/NumPy with many exception types
+    # (BadZipFile, zlib.error, EOFError, NotImplementedError for a garbled version
+    # field, ValueError for a bad array header ...): every one means "unreadable".
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except IsADirectoryError:
+        raise DataFormatError(path, None, "is a directory, not a data file") from None
+    except FileNotFoundError:
+        raise
+    except Exception as error:  # noqa: BLE001 (see above)
+        raise DataFormatError(path, None, f"not a readable .npz archive ({type(error).__name__}: {error})") from None
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise DataFormatError(path, None, "holds a single array, not an .npz archive of named arrays")
     arrays = {}
-    for name in names:
-        if name not in archive.files:
-            raise DataFormatError(path, None, f"missing array {name!r} (has {sorted(archive.files)})")
-        arrays[name] = np.asarray(archive[name])
+    with archive:
+        for name in names:
+            if name not in archive.files:
+                raise DataFormatError(path, None, f"missing array {name!r} (has {sorted(archive.files)})")
+            try:
+                array = np.asarray(archive[name])
+            except Exception as error:  # noqa: BLE001 (see above)
+                raise DataFormatError(
+                    path, None, f"array {name!r} is unreadable ({type(error).__name__}: {error})"
+                ) from None
+            if array.dtype.kind not in "iuf":
+                raise DataFormatError(path, None, f"array {name!r} has dtype {array.dtype}, not numbers")
+            if array.size == 0:
+                raise DataFormatError(path, None, f"array {name!r} is empty: no records")
+            arrays[name] = array
     return arrays
+
+
+def _finite_columns(path: Path, **columns: np.ndarray) -> None:
+    """Raise naming the first record of any column that is not finite."""
+    for name, values in columns.items():
+        finite = np.isfinite(values)
+        if not finite.all():
+            k = int(np.argmin(finite.reshape(finite.shape[0], -1).all(axis=1)))
+            raise DataFormatError(path, None, f"record {k + 1}: {name} is not finite")
+
+
+def _same_length(path: Path, **columns: np.ndarray) -> None:
+    lengths = {name: int(values.shape[0]) for name, values in columns.items()}
+    if len(set(lengths.values())) > 1:
+        raise DataFormatError(path, None, f"arrays differ in length: {lengths}")
 
 
 def _locate(default: tuple[str, ...], path: os.PathLike | str | None) -> Path:
@@ -279,27 +454,27 @@ def load_dead_reckoning(release: str = "mat", path: os.PathLike | str | None = N
         release: ``"mat"`` (``mat/aa3_dr.npz``: 61945 samples, t = 0.973 .. 1549.573 s,
             original steering calibration; the default, see the module docstring) or
             ``"ascii"`` (``acfr_ascii/DRS.txt``: 61763 samples to 1545.023 s,
-            recalibrated steering). A ``.txt``/``.dat`` ``path`` is read as text
+            recalibrated steering). A path that is not ``.npz`` is read as text
             ``time speed steering`` whatever the release.
         path: read this file instead of the one in the data folder.
+
+    Raises:
+        DataFormatError: see the module docstring (input checks).
     """
     default = {"mat": ("mat", "aa3_dr.npz"), "ascii": ("acfr_ascii", "DRS.txt")}
     if release not in default:
         raise ValueError(f"release must be 'mat' or 'ascii', got {release!r}")
     file = _locate(default[release], path)
     if file.suffix == ".npz":
-        with np.load(file) as archive:
-            arrays = _require_arrays(file, archive, ["time", "speed", "steering"])
-        times = ms_to_s(arrays["time"].reshape(-1))
-        speed = arrays["speed"].reshape(-1).astype(np.float64)
-        steering = arrays["steering"].reshape(-1).astype(np.float64)
-        if not (times.shape == speed.shape == steering.shape):
-            raise DataFormatError(file, None, "time, speed and steering differ in length")
-        _check_increasing(file, times, strict=True, first_line=1)
+        arrays = _load_npz(file, ["time", "speed", "steering"])
+        time_ms, speed, steering = (arrays[n].reshape(-1).astype(np.float64) for n in ("time", "speed", "steering"))
+        _same_length(file, time=time_ms, speed=speed, steering=steering)
+        _finite_columns(file, time=time_ms, speed=speed, steering=steering)
+        times, lines = ms_to_s(time_ms), None
     else:
-        table = read_table(file, 3, "time_s speed_m_s steering_rad")
-        times, speed, steering = table.T
-        _check_increasing(file, times, strict=True)
+        table, lines = _read_records(file, 3, "time_s speed_m_s steering_rad")
+        times, speed, steering = (column.copy() for column in table.T)
+    _check_increasing(file, times, strict=True, lines=lines)
     return DeadReckoning(times=times, speed=speed, steering=steering)
 
 
@@ -309,91 +484,123 @@ def load_gps(release: str = "mat", path: os.PathLike | str | None = None) -> Gps
     Args:
         release: ``"mat"`` (``mat/aa3_gpsx.npz``, 4466 fixes, ``xy = (Lo_m, La_m)``,
             the default) or ``"ascii"`` (``acfr_ascii/GPS.txt``, 948 of them in another
-            local frame). A text ``path`` is read as ``time x y``.
+            local frame). A path that is not ``.npz`` is read as text ``time x y``.
         path: read this file instead of the one in the data folder.
+
+    Raises:
+        DataFormatError: see the module docstring (input checks).
     """
     default = {"mat": ("mat", "aa3_gpsx.npz"), "ascii": ("acfr_ascii", "GPS.txt")}
     if release not in default:
         raise ValueError(f"release must be 'mat' or 'ascii', got {release!r}")
     file = _locate(default[release], path)
     if file.suffix == ".npz":
-        with np.load(file) as archive:
-            arrays = _require_arrays(file, archive, ["timeGps", "Lo_m", "La_m"])
-        times = ms_to_s(arrays["timeGps"].reshape(-1))
-        east, north = arrays["Lo_m"].reshape(-1), arrays["La_m"].reshape(-1)
-        if not (times.shape == east.shape == north.shape):
-            raise DataFormatError(file, None, "timeGps, Lo_m and La_m differ in length")
-        xy = np.stack([east, north], axis=1).astype(np.float64)
-        _check_increasing(file, times, strict=True)
+        arrays = _load_npz(file, ["timeGps", "Lo_m", "La_m"])
+        time_ms, east, north = (arrays[n].reshape(-1).astype(np.float64) for n in ("timeGps", "Lo_m", "La_m"))
+        _same_length(file, timeGps=time_ms, Lo_m=east, La_m=north)
+        _finite_columns(file, timeGps=time_ms, Lo_m=east, La_m=north)
+        times, xy, lines = ms_to_s(time_ms), np.stack([east, north], axis=1), None
     else:
-        table = read_table(file, 3, "time_s x_m y_m")
-        times, xy = table[:, 0], table[:, 1:]
-        _check_increasing(file, times, strict=True)
+        table, lines = _read_records(file, 3, "time_s x_m y_m")
+        times, xy = table[:, 0].copy(), table[:, 1:].copy()
+    _check_increasing(file, times, strict=True, lines=lines)
     return GpsFixes(times=times, xy=xy)
 
 
 def load_scan_times(path: os.PathLike | str | None = None) -> np.ndarray:
-    """The 7249 ``aa3_lsr2`` scan times [s] (``ufastslam/lasersampling.txt``, in ms)."""
+    """The 7249 ``aa3_lsr2`` scan times [s] (``ufastslam/lasersampling.txt``, in ms).
+
+    Raises:
+        DataFormatError: see the module docstring (input checks).
+    """
     file = _locate(("ufastslam", "lasersampling.txt"), path)
-    times = ms_to_s(read_table(file, 1, "TLsr_ms")[:, 0])
-    _check_increasing(file, times, strict=True)
+    table, lines = _read_records(file, 1, "TLsr_ms")
+    times = ms_to_s(table[:, 0])
+    _check_increasing(file, times, strict=True, lines=lines)
     return times
+
+
+def _range_policy(ranges: np.ndarray) -> tuple[np.ndarray, dict[str, int]]:
+    """Apply the laser range policy (module docstring): ``(ranges float32, counts)``.
+
+    Judged after the cast to float32, so a range that under- or overflows there
+    (``1e-320``, ``1e300``) counts as invalid too.
+    """
+    with np.errstate(over="ignore"):
+        ranges = np.asarray(ranges).astype(np.float32)
+    invalid = ~np.isfinite(ranges) | (ranges <= 0)
+    no_return = ~invalid & (ranges > NO_RETURN_M)
+    ranges = np.where(invalid, np.float32(NO_RETURN_VALUE), ranges)
+    return ranges, {"laser_no_return_beams": int(no_return.sum()), "laser_invalid_ranges": int(invalid.sum())}
 
 
 def load_laser(path: os.PathLike | str | None = None) -> LaserScans:
     """Load the raw laser scans of the ACFR ASCII release (7230 scans, 0.852 .. 1545.182 s).
 
     Args:
-        path: ``laser_acfr_ascii.npz`` (the default) or a ``LASER.txt[.gz]`` stream of
-            ``time r_0 .. r_360`` records (line breaks optional).
+        path: ``laser_acfr_ascii.npz`` (the default), or a ``LASER.txt`` stream of
+            ``time r_0 .. r_360`` records (line breaks optional, gzip recognised by its
+            first bytes).
 
     Returns:
-        Ranges in metres; values above :data:`NO_RETURN_M` mean no return.
+        Ranges in metres; values above :data:`NO_RETURN_M` mean no return. NaN, inf and
+        non-positive ranges are replaced by :data:`NO_RETURN_VALUE` and counted in
+        ``meta`` (the range policy in the module docstring).
+
+    Raises:
+        DataFormatError: see the module docstring (input checks).
     """
     file = _locate(("acfr_ascii", "laser_acfr_ascii.npz"), path)
     if file.suffix == ".npz":
-        with np.load(file) as archive:
-            arrays = _require_arrays(file, archive, ["time_s", "ranges_m"])
+        arrays = _load_npz(file, ["time_s", "ranges_m"])
         times = arrays["time_s"].reshape(-1).astype(np.float64)
-        ranges = np.asarray(arrays["ranges_m"], dtype=np.float32)
+        ranges = arrays["ranges_m"].astype(np.float64)
         if ranges.ndim != 2 or ranges.shape != (times.shape[0], N_BEAMS):
             raise DataFormatError(
                 file, None, f"ranges_m has shape {ranges.shape}, expected ({times.shape[0]}, {N_BEAMS})"
             )
+        _finite_columns(file, time_s=times)
+        ranges, counts = _range_policy(ranges)
+        _check_increasing(file, times, strict=True)
     else:
-        times, ranges = read_laser_text(file)
-    _check_increasing(file, times, strict=True)
-    return LaserScans(times=times, ranges=ranges, angles=BEAM_ANGLES.astype(np.float32))
-
-
-_TOKEN = re.compile(r"\S+")
+        times, ranges, counts = _read_laser_text(file)
+    meta = dict(file=str(file), n_scans=int(times.size), **counts)
+    return LaserScans(times=times, ranges=ranges, angles=BEAM_ANGLES.astype(np.float32), meta=meta)
 
 
 def read_laser_text(path: os.PathLike | str) -> tuple[np.ndarray, np.ndarray]:
     """Parse ACFR's ``LASER.txt`` (optionally gzipped): records of ``1 + 361`` numbers.
 
-    The original file has no line breaks, so errors name the record (scan) and the
-    line. Returns ``(times (S,), ranges (S, 361) float32)``.
+    The original file has no line breaks, so errors name the record (scan), the field
+    and the line. Ranges follow the range policy of the module docstring; use
+    :func:`load_laser` to get the counts. Returns ``(times (S,), ranges (S, 361) float32)``.
     """
-    path = Path(path)
-    with _open_text(path) as handle:
-        text = handle.read()
-    words = text.split()
+    times, ranges, _ = _read_laser_text(Path(path))
+    return times, ranges
+
+
+def _read_laser_text(path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     record = 1 + N_BEAMS
     try:
-        values = np.array(words, dtype=np.float64)
-    except ValueError:
-        for index, match in enumerate(_TOKEN.finditer(text)):
-            if not _is_float(match.group()):
-                line = text.count("\n", 0, match.start()) + 1
-                raise DataFormatError(
-                    path, line,
-                    f"{match.group()[:20]!r} is not a number (record {index // record + 1}, "
-                    f"field {index % record + 1} of {record})",
-                ) from None
-        raise
-    if values.size == 0:
-        raise DataFormatError(path, None, "no records")
+        text = _read_text(path)
+    except _TruncatedGzip as truncated:
+        complete = len(truncated.text.split()) // record
+        line = truncated.text.count("\n") + 1
+        raise _gzip_error(path, truncated, f"records (scans) of {record} numbers", complete, line) from None
+    _first_unprintable(path, text)
+
+    def where(index: int) -> tuple[int, str]:
+        match = next(m for i, m in enumerate(_TOKEN.finditer(text)) if i == index)
+        line = text.count("\n", 0, match.start()) + 1
+        return line, f"record {index // record + 1}, field {index % record + 1} of {record}"
+
+    words = text.split()
+    if not words:
+        raise DataFormatError(path, None, "no records (time + 361 ranges)")
+    values, bad = _parse_floats(words)
+    if values is None:
+        line, place = where(bad)
+        raise DataFormatError(path, line, f"{words[bad][:20]!r} is not a number ({place})")
     if values.size % record:
         n_full = values.size // record
         line = text.count("\n", 0, len(text.rstrip())) + 1
@@ -402,11 +609,38 @@ def read_laser_text(path: os.PathLike | str) -> tuple[np.ndarray, np.ndarray]:
             f"{values.size} numbers is not a whole number of {record}-number records "
             f"(time + {N_BEAMS} ranges): record {n_full + 1} is incomplete",
         )
-    if not np.all(np.isfinite(values)):
-        index = int(np.nonzero(~np.isfinite(values))[0][0])
-        raise DataFormatError(path, None, f"non-finite value in record {index // record + 1}")
     table = values.reshape(-1, record)
-    return table[:, 0].copy(), table[:, 1:].astype(np.float32)
+    times = table[:, 0].copy()
+    finite = np.isfinite(times)
+    if not finite.all():
+        index = int(np.argmin(finite)) * record
+        line, place = where(index)
+        raise DataFormatError(path, line, f"scan time {words[index]!r} is not finite ({place})")
+    steps = np.diff(times)
+    if np.any(steps <= 0):
+        k = int(np.argmax(steps <= 0)) + 1
+        line, place = where(k * record)
+        raise DataFormatError(
+            path, line, f"time {times[k]:.3f} s after {times[k - 1]:.3f} s ({place}): times must increase"
+        )
+    ranges, counts = _range_policy(table[:, 1:])
+    return times, ranges, counts
+
+
+def _load_detections(file: Path) -> tuple[Detections, np.ndarray]:
+    table, lines = _read_records(file, 4, "time_s range_m bearing_rad diameter_m")
+    times, ranges, raw_bearings, diameters = (column.copy() for column in table.T)
+    _check_increasing(file, times, strict=False, lines=lines)
+    bad = np.nonzero((ranges <= 0) | (raw_bearings < 0) | (raw_bearings > np.pi + 1e-6) | (diameters < 0))[0]
+    if bad.size:
+        k = int(bad[0])
+        raise DataFormatError(
+            file, int(lines[k]),
+            f"range {ranges[k]} m / bearing {raw_bearings[k]} rad / diameter {diameters[k]} m outside "
+            "range > 0, bearing in [0, pi], diameter >= 0",
+        )
+    detections = Detections(times=times, ranges=ranges, bearings=raw_bearings - np.pi / 2, diameters=diameters)
+    return detections, lines
 
 
 def load_detections(path: os.PathLike | str | None = None) -> Detections:
@@ -414,18 +648,12 @@ def load_detections(path: os.PathLike | str | None = None) -> Detections:
 
     Rows are ``time range raw_bearing diameter``; the raw bearing runs 0..pi with pi/2
     ahead and is returned as ``raw - pi/2`` (0 ahead, left positive).
+
+    Raises:
+        DataFormatError: see the module docstring (input checks); also a range that is
+            not positive, a raw bearing outside [0, pi] or a negative diameter.
     """
-    file = _locate(("rfs_slam_ascii", "measurements.dat"), path)
-    table = read_table(file, 4, "time_s range_m bearing_rad diameter_m")
-    times, ranges, raw_bearings, diameters = table.T
-    _check_increasing(file, times, strict=False)
-    bad = np.nonzero((ranges <= 0) | (raw_bearings < 0) | (raw_bearings > np.pi + 1e-6))[0]
-    if bad.size:
-        k = int(bad[0])
-        raise DataFormatError(
-            file, k + 1, f"range {ranges[k]} m / bearing {raw_bearings[k]} rad outside range > 0, bearing in [0, pi]"
-        )
-    return Detections(times=times, ranges=ranges, bearings=raw_bearings - np.pi / 2, diameters=diameters)
+    return _load_detections(_locate(("rfs_slam_ascii", "measurements.dat"), path))[0]
 
 
 # --------------------------------------------------------------------------- sequence
@@ -458,6 +686,15 @@ def build_controls(scan_times: np.ndarray, dr: DeadReckoning) -> np.ndarray:
     return controls
 
 
+def _scan_of(scan_times: np.ndarray, obs_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Scan index of each observation time and whether it matches no scan time (to the ms)."""
+    scan_ms = np.round(np.asarray(scan_times) * 1000.0).astype(np.int64)
+    obs_ms = np.round(np.asarray(obs_times) * 1000.0).astype(np.int64)
+    step = np.searchsorted(scan_ms, obs_ms)
+    unmatched = scan_ms[np.minimum(step, scan_ms.size - 1)] != obs_ms
+    return step, unmatched
+
+
 def build_observations(
     scan_times: np.ndarray,
     obs_times: np.ndarray,
@@ -474,18 +711,14 @@ def build_observations(
         ``(observations, obs_mask, counts)`` where counts has ``n_kept``,
         ``n_dropped_range`` and ``Z``.
     """
-    scan_ms = np.round(np.asarray(scan_times) * 1000.0).astype(np.int64)
-    obs_ms = np.round(np.asarray(obs_times) * 1000.0).astype(np.int64)
-    step = np.searchsorted(scan_ms, obs_ms)
-    step_c = np.minimum(step, scan_ms.size - 1)
-    unmatched = scan_ms[step_c] != obs_ms
+    step, unmatched = _scan_of(scan_times, obs_times)
     if unmatched.any():
         k = int(np.nonzero(unmatched)[0][0])
         raise ValueError(f"detection {k} at t = {obs_times[k]:.3f} s falls on no scan time")
     keep = np.asarray(ranges) < max_range
     order = np.argsort(step[keep], kind="stable")
     padded, mask = trees.pad_by_scan(
-        step[keep][order], scan_ms.size, capacity,
+        step[keep][order], np.shape(scan_times)[0], capacity,
         ranges=np.asarray(ranges, dtype=np.float64)[keep][order],
         bearings=np.asarray(bearings, dtype=np.float64)[keep][order],
     )
@@ -515,18 +748,29 @@ def load_sequence(
     """
     if source not in ("detections", "extractor"):
         raise ValueError(f"source must be 'detections' or 'extractor', got {source!r}")
+    if max_steps is not None and max_steps < 1:
+        raise ValueError(f"max_steps must be at least 1, got {max_steps}")
     dr = load_dead_reckoning("mat")
     gps = load_gps("mat")
+    recovered: dict[str, int] = {}
     files = {
         "dead_reckoning": str(find(DATASET, FOLDER, "mat", "aa3_dr.npz")),
         "gps": str(find(DATASET, FOLDER, "mat", "aa3_gpsx.npz")),
     }
     if source == "detections":
         scan_times = load_scan_times()
-        detections = load_detections()
+        detections_file = find(DATASET, FOLDER, "rfs_slam_ascii", "measurements.dat")
+        detections, lines = _load_detections(detections_file)
         obs_times, obs_ranges, obs_bearings = detections.times, detections.ranges, detections.bearings
+        _, unmatched = _scan_of(scan_times, obs_times)
+        if unmatched.any():
+            k = int(np.argmax(unmatched))
+            raise DataFormatError(
+                detections_file, int(lines[k]),
+                f"detection at t = {obs_times[k]:.3f} s falls on no scan time of lasersampling.txt",
+            )
         files["scan_times"] = str(find(DATASET, FOLDER, "ufastslam", "lasersampling.txt"))
-        files["detections"] = str(find(DATASET, FOLDER, "rfs_slam_ascii", "measurements.dat"))
+        files["detections"] = str(detections_file)
     else:
         laser = load_laser()
         scan_times = laser.times
@@ -535,6 +779,7 @@ def load_sequence(
         obs_times = scan_times[scan_index]
         obs_ranges, obs_bearings = found.ranges[found.mask], found.bearings[found.mask]
         files["laser"] = str(find(DATASET, FOLDER, "acfr_ascii", "laser_acfr_ascii.npz"))
+        recovered.update({k: laser.meta[k] for k in ("laser_no_return_beams", "laser_invalid_ranges")})
 
     n_scans_total = int(scan_times.size)
     if max_steps is not None:
@@ -543,6 +788,7 @@ def load_sequence(
         obs_times, obs_ranges, obs_bearings = obs_times[in_window], obs_ranges[in_window], obs_bearings[in_window]
     controls = build_controls(scan_times, dr)
     observations, obs_mask, counts = build_observations(scan_times, obs_times, obs_ranges, obs_bearings, max_range)
+    recovered["observations_beyond_max_range"] = counts["n_dropped_range"]
     gps_keep = gps.times <= scan_times[-1]
     meta = dict(
         dataset=DATASET,
@@ -565,6 +811,7 @@ def load_sequence(
         n_scans_without_obs=int((~obs_mask.any(axis=1)).sum()),
         K=int(controls.shape[1]),
         Z=int(observations.shape[1]),
+        recovered=recovered,
     )
     return VictoriaParkSequence(
         times=scan_times,

@@ -26,6 +26,25 @@ def chol2(a: Array) -> Array:
     return jnp.stack([jnp.stack([l00, zero], -1), jnp.stack([l10, l11], -1)], -2)
 
 
+def floor_eigenvalues2(a: Array, floor: Array) -> tuple[Array, Array]:
+    """Symmetrise 2x2 matrices and lift their smallest eigenvalue to at least ``floor``.
+
+    ``A + max(floor - lambda_min, 0) I``: the eigenvectors are kept and the matrix is
+    unchanged (bit for bit, up to symmetrisation) when it already clears the floor.
+    With ``floor`` a few ``eps`` times the scale of the matrix the result factors
+    reliably in its own precision.
+
+    Returns:
+        ``(matrix, lifted)`` where ``lifted`` says the floor was applied.
+    """
+    a00, a01, a11 = a[..., 0, 0], 0.5 * (a[..., 0, 1] + a[..., 1, 0]), a[..., 1, 1]
+    half_gap = 0.5 * (a00 - a11)
+    lam_min = 0.5 * (a00 + a11) - jnp.sqrt(half_gap**2 + a01**2)
+    shift = jnp.maximum(floor - lam_min, 0.0)
+    lifted = jnp.stack([jnp.stack([a00 + shift, a01], -1), jnp.stack([a01, a11 + shift], -1)], -2)
+    return lifted, shift > 0
+
+
 def inv2(a: Array) -> tuple[Array, Array]:
     """Inverse and log-determinant of symmetric positive 2x2 matrices."""
     a00, a01, a11 = a[..., 0, 0], 0.5 * (a[..., 0, 1] + a[..., 1, 0]), a[..., 1, 1]

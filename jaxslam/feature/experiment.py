@@ -44,6 +44,8 @@ class LandmarkSlamResult:
         resamplings: number of resampling steps.
         params: the parameters used (floats).
         config: the static configuration used.
+        state: the final :class:`~jaxslam.feature.filter.State` (host arrays: every
+            particle's pose, factor, weight and map).
     """
 
     algorithm: str
@@ -61,6 +63,7 @@ class LandmarkSlamResult:
     resamplings: int
     params: Params
     config: Config
+    state: Any = None
 
     @property
     def landmarks(self) -> int:
@@ -119,6 +122,7 @@ def run_landmark_slam(
     chunk: int = 512,
     dtype: Any = jnp.float32,
     checkpoint: Any = None,
+    callback: Any = None,
 ) -> LandmarkSlamResult:
     """Run RB-UPF or ERB-UPF over a whole sequence.
 
@@ -133,6 +137,9 @@ def run_landmark_slam(
         chunk: scans per compiled chunk.
         dtype: float dtype of the filter (float64 needs ``jax_enable_x64``).
         checkpoint: passed to :func:`jaxslam.progress.run_scan_chunked` (resume/save).
+        callback: passed to :func:`jaxslam.progress.run_scan_chunked`: called on the host
+            as ``callback(carry, steps_done)`` after every chunk; the carry is
+            ``(State, Params)``.
     """
     if algorithm not in ALGORITHMS:
         raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}")
@@ -151,8 +158,10 @@ def run_landmark_slam(
     )
     extra = {} if checkpoint is None else {"checkpoint": checkpoint}
     (state, _), infos, timing = run_scan_chunked(
-        None, (state, params_arr), xs, chunk=chunk, desc=algorithm, progress=progress, runner=_runner(cfg), **extra
+        None, (state, params_arr), xs, chunk=chunk, desc=algorithm, progress=progress, runner=_runner(cfg),
+        callback=callback, **extra,
     )
+    state = jax.tree_util.tree_map(np.asarray, state)
     info = {name: np.asarray(value) for name, value in infos._asdict().items()}
     best = int(np.argmax(np.asarray(state.log_weights)))
     table = jax.tree_util.tree_map(lambda x: np.asarray(x[best]), state.landmarks)
@@ -172,4 +181,5 @@ def run_landmark_slam(
         resamplings=int(info["resampled"].sum()),
         params=jax.tree_util.tree_map(lambda x: np.asarray(x).tolist(), params),
         config=cfg,
+        state=state,
     )

@@ -29,6 +29,28 @@ One step (one laser scan), for every particle (``vmap``):
 resampled, the weight variance, and the paper's Fig. 1 quantity
 :math:`\log \sum_m w^{[m]} \det P^{[m]}` for both the ERB and the RB proposal computed
 on the same particles (NaN when no particle was updated).
+
+Robustness policy (every case is counted in ``Info``, none is silent):
+
+* **Bad inputs.** A control row with a NaN or inf is run as ``dt = 0`` (skipped)
+  (``num_invalid_controls``); a real observation row with a NaN or inf or a range
+  ``<= 0`` is masked out (``num_invalid_observations``). Both are zeroed before any
+  arithmetic (:func:`clean_inputs`).
+* **Weights** live in log space and are normalised with ``logsumexp``; a likelihood
+  that underflows gives ``-inf``, and a step in which every weight is ``-inf`` (or
+  NaN) leaves uniform weights (:func:`jaxslam.core.resampling.normalize_log_weights`),
+  never NaN.
+* **Non-finite particles.** A particle whose sampled pose, pose factor or weight
+  increment is NaN or inf is not propagated: it keeps its pose, factor and map from
+  before the step and its log weight becomes ``-inf``, so resampling drops it
+  (``num_nonfinite_particles``). If every particle fails, the step changes nothing,
+  not even the weights.
+* **Landmark covariances** are symmetrised and their smallest eigenvalue is lifted to
+  a floor (``16 eps`` times the trace of the prior, at least the squared resolution
+  of the landmark's coordinates), so a downdate that would lose positive
+  definiteness is repaired (``num_cov_repairs``); a landmark update or a new
+  landmark that is not finite is not stored (``num_rejected_landmarks``). The
+  pose factors use clamped closed-form Cholesky factors (:mod:`jaxslam.feature._small`).
 """
 
 from __future__ import annotations
@@ -102,6 +124,11 @@ class Info(NamedTuple):
     num_landmarks: Array  # landmarks of the highest-weight particle
     num_landmarks_mean: Array  # weighted mean number of landmarks
     best_particle: Array  # int32 index of the highest-weight particle
+    num_invalid_controls: Array  # int32 control rows with a non-finite value (run as dt = 0)
+    num_invalid_observations: Array  # int32 real observation rows that are non-finite or range <= 0 (masked out)
+    num_nonfinite_particles: Array  # int32 particles whose new pose/weight was not finite (not propagated)
+    num_rejected_landmarks: Array  # int32 landmark updates/initialisations refused as non-finite (all particles)
+    num_cov_repairs: Array  # int32 landmark covariance updates whose eigenvalue floor was applied
 
 
 def cast_params(params: Params, dtype) -> Params:
@@ -199,9 +226,35 @@ def _sensor_frame(pose: Array, params: Params) -> tuple[Array, Array, Array]:
     return xy, c, s
 
 
-def update_landmark(pose: Array, mean: Array, cov: Array, observation: Array, params: Params) -> tuple[Array, Array]:
+def _cov_floor(cov: Array, mean: Array) -> Array:
+    """The smallest eigenvalue a landmark covariance is allowed (dtype-aware).
+
+    ``max(16 eps tr(cov), (4 eps (|mean| + 1 m))^2)``: the first keeps a 2x2
+    Cholesky accurate, the second is the squared resolution of the landmark's
+    coordinates, below which a variance is rounding noise (float32: 0.5 um at the
+    origin, 0.1 mm at 200 m; float64: negligible).
+    """
+    eps = jnp.finfo(cov.dtype).eps
+    resolution = 4.0 * eps * (jnp.max(jnp.abs(mean)) + 1.0)
+    return jnp.maximum(16.0 * eps * jnp.trace(cov), resolution * resolution)
+
+
+def update_landmark(
+    pose: Array, mean: Array, cov: Array, observation: Array, params: Params
+) -> tuple[Array, Array, Array, Array]:
     """Unscented Kalman update of one landmark given a (sampled) pose (n = 2 sigma
-    points over the landmark, additive R)."""
+    points over the landmark, additive R).
+
+    The updated covariance ``P - K S K^T`` is symmetrised and its smallest eigenvalue
+    lifted to :func:`_cov_floor` of the prior, so a downdate that would lose positive
+    definiteness in finite precision (a tiny ``R``, a near-singular prior) is repaired
+    rather than stored. An update that is not finite anyway is refused: the prior is
+    returned unchanged.
+
+    Returns:
+        ``(mean, cov, ok, repaired)``: ``ok`` False where the update was refused,
+        ``repaired`` True where the eigenvalue floor was applied.
+    """
     dtype = mean.dtype
     mean_w, cov_w, _ = ut_weights(2, params.ut_landmark, dtype)
     points = sigma_points(mean, _small.chol2(cov), params.ut_landmark)
@@ -216,13 +269,20 @@ def update_landmark(pose: Array, mean: Array, cov: Array, observation: Array, pa
     s_inv, _ = _small.inv2(s)
     gain = cross @ s_inv
     nu = jnp.stack([observation[0] - y_mean[0], wrap_angle(observation[1] - y_mean[1])])
-    new_cov = cov - gain @ s @ gain.T
-    return mean + gain @ nu, 0.5 * (new_cov + new_cov.T)
+    new_cov, repaired = _small.floor_eigenvalues2(cov - gain @ s @ gain.T, _cov_floor(cov, mean))
+    new_mean = mean + gain @ nu
+    ok = jnp.all(jnp.isfinite(new_mean)) & jnp.all(jnp.isfinite(new_cov))
+    return jnp.where(ok, new_mean, mean), jnp.where(ok, new_cov, cov), ok, repaired & ok
 
 
-def initialise_landmark(pose: Array, observation: Array, params: Params) -> tuple[Array, Array]:
+def initialise_landmark(pose: Array, observation: Array, params: Params) -> tuple[Array, Array, Array]:
     """Landmark mean and covariance from one observation: the unscented transform of
-    the inverse observation model over ``z ~ N(observation, R)``."""
+    the inverse observation model over ``z ~ N(observation, R)``.
+
+    The covariance is symmetrised with its smallest eigenvalue lifted to
+    :func:`_cov_floor` of itself. Returns ``(mean, cov, ok)``, ``ok`` False where
+    the result is not finite (the caller does not store it).
+    """
     dtype = pose.dtype
     mean_w, cov_w, _ = ut_weights(2, params.ut_landmark, dtype)
     r_sqrt = jnp.diag(jnp.stack([params.range_std, params.bearing_std]))
@@ -232,7 +292,9 @@ def initialise_landmark(pose: Array, observation: Array, params: Params) -> tupl
     m_mean = mean_w @ m
     dev = m - m_mean
     cov = jnp.einsum("i,ij,ik->jk", cov_w, dev, dev)
-    return m_mean, 0.5 * (cov + cov.T)
+    cov, _ = _small.floor_eigenvalues2(cov, _cov_floor(cov, m_mean))
+    ok = jnp.all(jnp.isfinite(m_mean)) & jnp.all(jnp.isfinite(cov))
+    return m_mean, cov, ok
 
 
 class _ParticleOut(NamedTuple):
@@ -247,6 +309,9 @@ class _ParticleOut(NamedTuple):
     num_new: Array
     num_dropped: Array
     local_overflow: Array
+    finite: Array
+    num_rejected_landmarks: Array
+    num_cov_repairs: Array
 
 
 def _particle_step(
@@ -304,6 +369,11 @@ def _particle_step(
     reset = params.pose_reset_std * jnp.eye(3, dtype=dtype)
     new_sqrt = jnp.where(has_match | has_new, reset, pred_sqrt)
     log_w_inc = jnp.where(has_match, own.log_likelihood, jnp.zeros((), dtype))
+    # A particle whose new pose, factor or weight is not finite (-inf, an underflowed
+    # likelihood, is a valid weight) keeps its old pose and map and gets weight zero.
+    finite = (
+        jnp.all(jnp.isfinite(sampled)) & jnp.all(jnp.isfinite(new_sqrt)) & ~jnp.isnan(log_w_inc) & (log_w_inc < jnp.inf)
+    )
 
     # 5. map. Everything is read from the old table before any slot is written, so the
     # scatters below can update the tables in place.
@@ -321,44 +391,53 @@ def _particle_step(
     delta = jnp.where(local_matched, 1.0, jnp.where(visible, -1.0, 0.0)).astype(dtype)
     local_evidence = table.evidence[jnp.minimum(local, capacity - 1)] + delta
     alive = local_evidence >= params.prune_threshold
-    num_pruned = jnp.sum(local_valid & ~alive)
+    num_pruned = jnp.where(finite, jnp.sum(local_valid & ~alive), 0)
+    # Writes to slot `capacity` are dropped: that is how a failed particle keeps its map.
+    local_written = jnp.where(finite, local, capacity)
 
-    # 5b. matched landmarks: unscented update given the sampled pose
-    lm_means, lm_covs = jax.vmap(update_landmark, (None, 0, 0, 0, None))(
+    # 5b. matched landmarks: unscented update given the sampled pose (a non-finite
+    # update is refused and the landmark kept as it was)
+    lm_means, lm_covs, lm_ok, lm_repaired = jax.vmap(update_landmark, (None, 0, 0, 0, None))(
         sampled, assoc.landmark_means, table.covs[jnp.minimum(assoc.slots, capacity - 1)], z, params
     )
-    means = table.means.at[assoc.slots].set(lm_means, mode="drop")
-    covs = table.covs.at[assoc.slots].set(lm_covs, mode="drop")
+    lm_slots = jnp.where(finite & lm_ok, assoc.slots, capacity)
+    means = table.means.at[lm_slots].set(lm_means, mode="drop")
+    covs = table.covs.at[lm_slots].set(lm_covs, mode="drop")
 
-    evidence = table.evidence.at[local].set(local_evidence, mode="drop")
-    active = table.active.at[local].set(alive & local_valid, mode="drop")
+    evidence = table.evidence.at[local_written].set(local_evidence, mode="drop")
+    active = table.active.at[local_written].set(alive & local_valid, mode="drop")
 
-    # 5c. new landmarks in the first free slots
+    # 5c. new landmarks in the first free slots (a non-finite one is not stored)
     k = z.shape[0]
     free = free_slots(active, k)
     rank = jnp.cumsum(assoc.new) - 1
-    new_slots = jnp.where(assoc.new, free[jnp.clip(rank, 0, k - 1)], capacity)
-    new_means, new_covs = jax.vmap(initialise_landmark, (None, 0, None))(sampled, z, params)
+    new_means, new_covs, new_ok = jax.vmap(initialise_landmark, (None, 0, None))(sampled, z, params)
+    storable = assoc.new & finite & new_ok
+    new_slots = jnp.where(storable, free[jnp.clip(rank, 0, k - 1)], capacity)
     means = means.at[new_slots].set(new_means, mode="drop")
     covs = covs.at[new_slots].set(new_covs, mode="drop")
     evidence = evidence.at[new_slots].set(jnp.broadcast_to(params.new_evidence, (k,)), mode="drop")
     active = active.at[new_slots].set(True, mode="drop")
     added = jnp.sum(new_slots < capacity)
     count = table.count + added - num_pruned
-    dropped = jnp.sum(assoc.new) - added
+    dropped = jnp.sum(storable) - added
+    rejected = jnp.sum(finite & ((matched & ~lm_ok) | (assoc.new & ~new_ok)))
 
     return _ParticleOut(
-        pose=sampled,
-        pose_sqrt=new_sqrt,
-        log_weight_increment=log_w_inc,
+        pose=jnp.where(finite, sampled, pose),
+        pose_sqrt=jnp.where(finite, new_sqrt, pose_sqrt),
+        log_weight_increment=jnp.where(finite, log_w_inc, -jnp.inf),
         landmarks=LandmarkTable(means, covs, evidence, active, count.astype(jnp.int32)),
-        has_match=has_match,
+        has_match=has_match & finite,
         log_det_erb=prop_erb.log_det_cov,
         log_det_rb=prop_rb.log_det_cov,
         num_matched=jnp.sum(matched),
         num_new=jnp.sum(assoc.new),
         num_dropped=dropped,
         local_overflow=overflow,
+        finite=finite,
+        num_rejected_landmarks=rejected,
+        num_cov_repairs=jnp.sum(finite & matched & lm_repaired),
     )
 
 
@@ -389,7 +468,9 @@ def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array, Arr
     return estimate, spread + own, weights, best
 
 
-def _finish(key: Array, state: State, out: _ParticleOut | None, params: Params, config: Config) -> tuple[State, Info]:
+def _finish(
+    key: Array, state: State, out: _ParticleOut | None, params: Params, config: Config, invalid: tuple[Array, Array]
+) -> tuple[State, Info]:
     dtype = state.pose_means.dtype
     log_w = normalize_log_weights(state.log_weights)
     estimate, cov, weights, best = _summary(state, log_w)
@@ -401,6 +482,7 @@ def _finish(key: Array, state: State, out: _ParticleOut | None, params: Params, 
         extra = dict(
             log_det_proposal_erb=nan, log_det_proposal_rb=nan, updated=jnp.zeros((), bool),
             num_matched=zero, num_new=zero, num_dropped=izero, local_overflow=izero,
+            num_nonfinite_particles=izero, num_rejected_landmarks=izero, num_cov_repairs=izero,
         )
         resampled = jnp.zeros((), bool)
         new_state = state._replace(log_weights=log_w)
@@ -413,6 +495,9 @@ def _finish(key: Array, state: State, out: _ParticleOut | None, params: Params, 
             num_new=jnp.mean(out.num_new.astype(dtype)),
             num_dropped=jnp.sum(out.num_dropped).astype(jnp.int32),
             local_overflow=jnp.max(out.local_overflow).astype(jnp.int32),
+            num_nonfinite_particles=jnp.sum(~out.finite).astype(jnp.int32),
+            num_rejected_landmarks=jnp.sum(out.num_rejected_landmarks).astype(jnp.int32),
+            num_cov_repairs=jnp.sum(out.num_cov_repairs).astype(jnp.int32),
         )
         ancestors, resampled, new_log_w = selective_resample(key, log_w, params.resample_threshold, config.resampler)
         new_state = jax.lax.cond(
@@ -430,9 +515,32 @@ def _finish(key: Array, state: State, out: _ParticleOut | None, params: Params, 
         num_landmarks=state.landmarks.count[best],
         num_landmarks_mean=weights @ state.landmarks.count.astype(dtype),
         best_particle=best.astype(jnp.int32),
+        num_invalid_controls=invalid[0],
+        num_invalid_observations=invalid[1],
         **extra,
     )
     return new_state, info
+
+
+def clean_inputs(control: Array, observation: Observation) -> tuple[Array, Observation, Array, Array]:
+    """Apply the input policy (module docstring) to one step's inputs.
+
+    A control row with a non-finite value becomes a zero row (``dt = 0``: skipped);
+    a real observation row with a non-finite value or a range ``<= 0`` is masked out
+    and zeroed, so no NaN reaches the arithmetic (a masked NaN would still poison
+    products such as ``0 * NaN``).
+
+    Returns:
+        ``(control, observation, num_invalid_controls, num_invalid_observations)``.
+    """
+    control_ok = jnp.all(jnp.isfinite(control), axis=-1)
+    values, mask = observation.values, observation.mask
+    obs_ok = jnp.all(jnp.isfinite(values), axis=-1) & (values[:, 0] > 0)
+    control = jnp.where(control_ok[:, None], control, jnp.zeros((), control.dtype))
+    values = jnp.where(obs_ok[:, None], values, jnp.zeros((), values.dtype))
+    num_controls = jnp.sum(~control_ok).astype(jnp.int32)
+    num_observations = jnp.sum(mask & ~obs_ok).astype(jnp.int32)
+    return control, Observation(values, mask & obs_ok), num_controls, num_observations
 
 
 @partial(jax.jit, static_argnames=("config",))
@@ -454,6 +562,7 @@ def step(
     params = cast_params(params, dtype)
     control = jnp.asarray(control, dtype)
     observation = Observation(jnp.asarray(observation.values, dtype), jnp.asarray(observation.mask, bool))
+    control, observation, *invalid = clean_inputs(control, observation)
     k_sample, k_resample = jax.random.split(key)
     particle_keys = jax.random.split(k_sample, config.num_particles)
 
@@ -461,11 +570,15 @@ def step(
         out = jax.vmap(_particle_step, (0, 0, 0, 0, None, None, None, None))(
             particle_keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation, params, config
         )
-        updated = State(out.pose, out.pose_sqrt, state.log_weights + out.log_weight_increment, out.landmarks)
-        return _finish(k_resample, updated, out, params, config)
+        # If every particle failed, the step changes nothing (not even the weights).
+        log_weights = jnp.where(
+            jnp.any(out.finite), state.log_weights + out.log_weight_increment, state.log_weights
+        )
+        updated = State(out.pose, out.pose_sqrt, log_weights, out.landmarks)
+        return _finish(k_resample, updated, out, params, config, invalid)
 
     def idle_step(state):
-        return _finish(k_resample, state, None, params, config)
+        return _finish(k_resample, state, None, params, config, invalid)
 
     if not config.skip_stationary:
         return active_step(state)
