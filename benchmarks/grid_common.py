@@ -73,7 +73,7 @@ def run_in_subprocess(spec: dict, timeout: float = 3600.0) -> dict:
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", json.dumps(spec)]
     try:
-        out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, check=False)
     except subprocess.TimeoutExpired:
         return {**spec, "error": f"timeout after {timeout} s"}
     lines = [line for line in out.stdout.splitlines() if line.startswith("{")]

@@ -44,8 +44,8 @@ ALGORITHMS = ("srupf-gm", "srupf-gm-npc", "gmapping")
 # odometry bounding box plus a margin.
 DATASET_BOUNDS = {
     "intel": (-18.0, -30.0, 24.0, 12.0),
-    "fr079": (-23.0, -6.0, 31.0, 30.0),
-    "mit-csail": (533.0, -44.0, 611.0, 15.0),
+    "fr079": (-28.0, -12.0, 36.0, 36.0),
+    "mit-csail": (520.0, -55.0, 625.0, 25.0),
 }
 
 # Per-dataset parameter defaults (on top of default_params).
@@ -197,9 +197,9 @@ def run_grid_slam(
 
     overrides = dict(DATASET_PARAMS.get(name, {}))
     overrides.update(params or {})
-    prm: GridSlamParams = default_params(
-        log.angles, log.laser_offset, num_particles=particles, dtype=dtype, **overrides
-    )
+    angles = overrides.pop("beam_angles", log.angles)
+    laser_offset = overrides.pop("laser_offset", log.laser_offset)
+    prm: GridSlamParams = default_params(angles, laser_offset, num_particles=particles, dtype=dtype, **overrides)
     usable = float(prm.usable_range)
     ranges = np.asarray(log.ranges[keyframes], np.float64)
     valid = np.asarray(log.valid[keyframes]) & np.isfinite(ranges)
