@@ -441,3 +441,14 @@ __all__ = [
     "resample_in_place",
     "score_model",
 ]
+
+
+def scan_keyframes(step_fn, key, state, controls, observations, params, config):
+    """Scan a filter's ``step`` over keyframes (one key per keyframe, split from ``key``)."""
+    keys = jax.random.split(key, observations.ranges.shape[0])
+
+    def body(carry, inputs):
+        k, u, z = inputs
+        return step_fn(k, carry, u, z, params, config)
+
+    return jax.lax.scan(body, state, (keys, controls, observations))

@@ -14,14 +14,12 @@ With ``negate: 0`` a pixel value ``v`` means occupancy ``(255 - v) / 255``. As
 0, free (``p < free_thresh``) as 254 and unknown as 205. The image's first row is the
 top of the map (largest ``y``), so the grid (row 0 at ``origin`` y) is flipped.
 
-Host-side NumPy; the PNG is written with ``zlib`` (no imaging dependency).
+Host-side NumPy; the PNG is written by matplotlib.
 """
 
 from __future__ import annotations
 
 import os
-import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -72,25 +70,16 @@ def read_pgm(path: os.PathLike | str) -> np.ndarray:
 
 
 def write_png(path: os.PathLike | str, image: np.ndarray) -> None:
-    """8-bit greyscale (``(H, W)``) or RGB (``(H, W, 3)``) PNG."""
+    """8-bit greyscale (``(H, W)``) or RGB (``(H, W, 3)``) PNG, written by matplotlib."""
+    from matplotlib.image import imsave
+
     image = np.asarray(image, np.uint8)
     if image.ndim == 2:
-        color, channels = 0, 1
+        imsave(path, image, cmap="gray", vmin=0, vmax=255, format="png")
     elif image.ndim == 3 and image.shape[2] == 3:
-        color, channels = 2, 3
+        imsave(path, image, format="png")
     else:
         raise ValueError(f"image must be (H, W) or (H, W, 3), got {image.shape}")
-    h, w = image.shape[:2]
-    raw = np.concatenate([np.zeros((h, 1), np.uint8), image.reshape(h, w * channels)], 1).tobytes()
-
-    def chunk(kind: bytes, payload: bytes) -> bytes:
-        return struct.pack(">I", len(payload)) + kind + payload + struct.pack(">I", zlib.crc32(kind + payload) & 0xFFFFFFFF)
-
-    png = b"\x89PNG\r\n\x1a\n"
-    png += chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, color, 0, 0, 0))
-    png += chunk(b"IDAT", zlib.compress(raw, 6))
-    png += chunk(b"IEND", b"")
-    Path(path).write_bytes(png)
 
 
 def write_map_yaml(

@@ -72,6 +72,7 @@ from jaxslam.grid.common import (
     finish_step,
     init,
     match_geometry,
+    scan_keyframes,
     score_model,
 )
 from jaxslam.grid.matching import get_matcher
@@ -238,13 +239,7 @@ def run(
     config: GridSlamConfig,
 ) -> tuple[GridSlamState, GridSlamInfo]:
     """Scan :func:`step` over keyframes: ``controls`` stacked over ``T``, ``observations (T, B)``."""
-    keys = jax.random.split(key, observations.ranges.shape[0])
-
-    def body(carry, inputs):
-        k, u, z = inputs
-        return step(k, carry, u, z, params, config)
-
-    return jax.lax.scan(body, state, (keys, controls, observations))
+    return scan_keyframes(step, key, state, controls, observations, params, config)
 
 
 __all__ = ["MeasurementUpdate", "init", "particle_update", "predict", "run", "sqrt_measurement_update", "step"]

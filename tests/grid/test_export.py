@@ -1,7 +1,5 @@
 """Map export: ROS map_server PGM + YAML, and PNG."""
 
-import struct
-import zlib
 
 import numpy as np
 
@@ -28,24 +26,17 @@ def test_occupancy_image_thresholds_and_orientation():
 
 
 def _png_pixels(data: bytes) -> np.ndarray:
+    """Decode a PNG with matplotlib (an independent reader) to uint8 grey or RGB."""
+    import io
+
+    from matplotlib.image import imread
+
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    pos, idat, header = 8, b"", None
-    while pos < len(data):
-        (length,) = struct.unpack(">I", data[pos : pos + 4])
-        kind = data[pos + 4 : pos + 8]
-        payload = data[pos + 8 : pos + 8 + length]
-        (crc,) = struct.unpack(">I", data[pos + 8 + length : pos + 12 + length])
-        assert crc == zlib.crc32(kind + payload) & 0xFFFFFFFF
-        if kind == b"IHDR":
-            header = struct.unpack(">IIBBBBB", payload)
-        elif kind == b"IDAT":
-            idat += payload
-        pos += 12 + length
-    w, h, _depth, color = header[:4]
-    channels = 1 if color == 0 else 3
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * channels)
-    assert np.all(raw[:, 0] == 0)
-    return raw[:, 1:].reshape(h, w, channels).squeeze()
+    rgba = np.round(imread(io.BytesIO(data), format="png") * 255).astype(np.uint8)
+    rgb = rgba[..., :3]
+    if np.all(rgb[..., 0] == rgb[..., 1]) and np.all(rgb[..., 1] == rgb[..., 2]):
+        return rgb[..., 0]
+    return rgb
 
 
 def test_save_map_roundtrip(tmp_path):
