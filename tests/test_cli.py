@@ -168,3 +168,25 @@ def test_interrupted_run_resumes_to_identical_outputs(tmp_path, monkeypatch, cap
     capsys.readouterr()
     assert run_cli("run", "--resume", str(straight)) == 2
     assert "no checkpoint" in capsys.readouterr().err
+
+
+def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypatch):
+    from jaxslam import checkpoint as ckpt
+
+    common = ("--algorithm", "srupf-gm", "--particles", "4", "--max-steps", "24", "--no-progress", "--no-plots")
+    straight = tmp_path / "straight"
+    assert run_cli("run", "--out", str(straight), *common) == 0
+    original_save = ckpt.Checkpoint.save
+
+    def save_then_crash(self, carry, done, leaves):
+        original_save(self, carry, done, leaves)
+        if done == 16:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(ckpt.Checkpoint, "save", save_then_crash)
+    interrupted = tmp_path / "interrupted"
+    assert run_cli("run", "--out", str(interrupted), "--checkpoint-every", "8", *common) == 130
+    monkeypatch.setattr(ckpt.Checkpoint, "save", original_save)
+    assert run_cli("run", "--resume", str(interrupted), "--no-progress", "--no-plots") == 0
+    assert (interrupted / "trajectory.tum").read_text() == (straight / "trajectory.tum").read_text()
+    assert (interrupted / "map.pgm").read_bytes() == (straight / "map.pgm").read_bytes()

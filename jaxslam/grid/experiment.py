@@ -160,6 +160,7 @@ def run_grid_slam(
     max_keyframes: int | None = None,
     dtype=jnp.float32,
     chunk: int = 64,
+    checkpoint: Any = None,
 ) -> GridSlamResult:
     """Run ``algorithm`` on a log and collect trajectory, map and diagnostics.
 
@@ -184,6 +185,8 @@ def run_grid_slam(
         max_keyframes: stop after this many keyframes (short runs, CI).
         dtype: float dtype of poses and params.
         chunk: keyframes per compiled chunk.
+        checkpoint: a :class:`jaxslam.checkpoint.Checkpoint` to save the state every N
+            keyframes and/or resume from it (see :func:`jaxslam.progress.run_scan_chunked`).
     """
     name = _dataset_name(log_or_sim)
     log = log_or_sim if isinstance(log_or_sim, CarmenLog) else load_dataset_log(log_or_sim)
@@ -241,7 +244,8 @@ def run_grid_slam(
         return (st, pr), summary
 
     (state, prm), ys, timing = run_scan_chunked(
-        step_fn, (state, prm), xs, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress
+        step_fn, (state, prm), xs, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress,
+        checkpoint=checkpoint,
     )
     best = int(best_particle(state))
     kf_poses = best_trajectory(ys["poses"], ys["ancestors"], best)
