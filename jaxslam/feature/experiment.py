@@ -86,6 +86,11 @@ def params_for(sequence: Any, **overrides: Any) -> Params:
         for name in ("speed_std", "steering_std", "range_std", "bearing_std", "max_range", "fov"):
             values[name] = float(meta[name])
         values["sensor_offset"] = tuple(meta["sensor_offset"])
+        # Simulated landmarks are at least `min_separation` apart, so an observation
+        # is only new when it is far outside every gate (gate_new=20 is tuned for the
+        # clutter of Victoria Park). On the default world, 100 particles, 300 steps:
+        # ERB mean NEES 17 with 100 against 202 with 20.
+        values["gate_new"] = 100.0
     elif "max_range" in meta:
         values["max_range"] = float(meta["max_range"])
     values.update(overrides)
