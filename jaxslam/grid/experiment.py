@@ -68,6 +68,7 @@ class GridSlamResult:
             ``best_score``, ``dropped_points``, ``pd_ok_fraction``).
         wall_s: run time without compilation; ``compile_s``: compilation.
         resamplings: number of resampling steps.
+        state: the final filter state (particles, grids, weights) as host arrays.
     """
 
     algorithm: str
@@ -87,6 +88,7 @@ class GridSlamResult:
     resamplings: int
     config: GridSlamConfig
     params: dict[str, Any]
+    state: Any = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready scalars."""
@@ -272,6 +274,7 @@ def run_grid_slam(
         resamplings=int(np.sum(info["resampled"])),
         config=cfg,
         params={k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"},
+        state=jax.tree_util.tree_map(np.asarray, state),
     )
 
 

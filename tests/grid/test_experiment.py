@@ -42,3 +42,21 @@ def test_short_real_log_run():
     assert int(result.info["dropped_points"].max()) == 0
     # the filter stays near odometry over the first metres (a gross failure would not)
     assert np.abs(result.keyframe_poses[:, :2]).max() < 5.0
+
+
+def test_full_intel_float32_run_ends_without_nan():
+    """The whole Intel log (911 keyframes) in float32: nothing in the final state is NaN."""
+    import jax
+
+    try:
+        res = run_grid_slam("intel", algorithm="srupf-gm", particles=5, seed=0, progress=False)
+    except DatasetNotFoundError as err:
+        pytest.skip(str(err))
+    assert res.keyframes.shape[0] > 900
+    for leaf in jax.tree_util.tree_leaves(res.state):
+        leaf = np.asarray(leaf)
+        if np.issubdtype(leaf.dtype, np.floating):
+            assert leaf.dtype == np.float32
+            assert np.all(np.isfinite(leaf))
+    assert np.all(np.isfinite(res.trajectory))
+    assert np.all(np.isfinite(res.map_log_odds))
