@@ -59,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxslam.datasets.geometry import se2_between, wrap_angle
 from jaxslam.datasets.paths import DataFormatError, find
 
 __all__ = [
@@ -178,18 +179,6 @@ def guess_angular_resolution(num_beams: int) -> float:
     if num_beams % 2:
         return math.pi / max(num_beams - 1, 1)
     return math.pi / num_beams
-
-
-def _wrap(angle):
-    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a^-1 (+) b`` for (..., 3) SE(2) poses."""
-    dx = b[..., 0] - a[..., 0]
-    dy = b[..., 1] - a[..., 1]
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, _wrap(b[..., 2] - a[..., 2])], axis=-1)
 
 
 def _read_bytes(path: Path) -> bytes:
@@ -604,7 +593,7 @@ def load_carmen(
     odom_poses = np.array(robot_list, dtype=np.float64).reshape(num_scans, 3)
     laser_poses = np.array(laser_list, dtype=np.float64).reshape(num_scans, 3)
     with np.errstate(all="ignore"):
-        relative = _between(odom_poses, laser_poses)
+        relative = se2_between(odom_poses, laser_poses)
     if laser_offset is not None:
         offset = np.asarray(laser_offset, dtype=np.float64).reshape(3)
     else:
@@ -622,7 +611,7 @@ def load_carmen(
                 )
     with np.errstate(all="ignore"):
         mismatch = np.abs(relative[:, :2] - offset[:2]).max(axis=1) > _OFFSET_TOL
-        mismatch |= np.abs(_wrap(relative[:, 2] - offset[2])) > _OFFSET_TOL
+        mismatch |= np.abs(wrap_angle(relative[:, 2] - offset[2])) > _OFFSET_TOL
     collector.count("laser_offset_mismatch_scans", int(mismatch.sum()))
 
     maxima = np.unique(scan_max_range)
@@ -699,7 +688,7 @@ def select_keyframes(
         return np.zeros(0, dtype=np.int64)
     if temporal >= 0 and times is None:
         raise ValueError("temporal >= 0 needs the scan times")
-    steps = _between(poses[:-1], poses[1:])
+    steps = se2_between(poses[:-1], poses[1:])
     step_linear = np.hypot(steps[:, 0], steps[:, 1])
     step_angular = np.abs(steps[:, 2])
     stamps = None if times is None else np.asarray(times, dtype=np.float64)

@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 
+from jaxslam.datasets.geometry import wrap_angle
 from jaxslam.datasets.victoria_park import VictoriaParkSequence
 
 
@@ -44,10 +45,6 @@ class LandmarkSequence(VictoriaParkSequence):
     associations: np.ndarray = None
 
 
-def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 def _move(pose, speed, steering, dt, geometry):
     wheelbase, encoder, fwd, left = geometry
     tan_s = np.tan(steering)
@@ -58,7 +55,7 @@ def _move(pose, speed, steering, dt, geometry):
         [
             pose[0] + dt * (v_c * c - omega * (fwd * s + left * c)),
             pose[1] + dt * (v_c * s + omega * (fwd * c - left * s)),
-            _wrap(pose[2] + dt * omega),
+            wrap_angle(pose[2] + dt * omega),
         ]
     )
 
@@ -118,7 +115,7 @@ def simulate(
             rel = pose[:2] - centre
             ang = math.atan2(rel[1], rel[0]) + 0.35
             target = centre + radius * np.array([np.cos(ang), np.sin(ang)])
-            err = _wrap(math.atan2(target[1] - pose[1], target[0] - pose[0]) - pose[2])
+            err = wrap_angle(math.atan2(target[1] - pose[1], target[0] - pose[0]) - pose[2])
             steer = float(np.clip(1.5 * err, -0.5, 0.5))
             v = speed * (1.0 + 0.2 * np.sin(0.05 * (t * k + j) * dt * 2 * np.pi))
             true_controls[t, j] = (v, steer, dt)
@@ -128,11 +125,11 @@ def simulate(
         sensor = pose[:2] + np.array([c * sensor_offset[0] - s * sensor_offset[1], s * sensor_offset[0] + c * sensor_offset[1]])
         d = landmarks - sensor
         r = np.hypot(d[:, 0], d[:, 1])
-        b = _wrap(np.arctan2(d[:, 1], d[:, 0]) - pose[2])
+        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - pose[2])
         seen = np.nonzero((r < max_range) & (np.abs(b) <= 0.5 * fov))[0]
         obs_lists.append(
             [
-                (r[i] + range_std * rng.standard_normal(), _wrap(b[i] + bearing_std * rng.standard_normal()), int(i))
+                (r[i] + range_std * rng.standard_normal(), wrap_angle(b[i] + bearing_std * rng.standard_normal()), int(i))
                 for i in seen
             ]
         )

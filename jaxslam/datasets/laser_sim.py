@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxslam.datasets.carmen import CarmenLog
+from jaxslam.datasets.geometry import se2_between, se2_compose
 
 __all__ = ["SimulatedLog", "office_world", "raycast", "ring_path", "simulate"]
 
@@ -182,19 +183,6 @@ def raycast(walls: np.ndarray, origins: np.ndarray, headings: np.ndarray, max_ra
     return np.where(out <= max_range, out, np.inf)
 
 
-def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    dth = (b[..., 2] - a[..., 2] + np.pi) % (2 * np.pi) - np.pi
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, dth], -1)
-
-
-def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    th = (a[..., 2] + b[..., 2] + np.pi) % (2 * np.pi) - np.pi
-    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1], th], -1)
-
-
 def simulate(
     *,
     width: float = 16.0,
@@ -236,14 +224,14 @@ def simulate(
     num_scans = true_poses.shape[0]
     angles = (-0.5 * fov + fov * np.arange(num_beams) / max(num_beams - 1, 1)).astype(np.float64)
     offset = np.asarray(laser_offset, np.float64)
-    laser_poses = _compose(true_poses, np.broadcast_to(offset, true_poses.shape))
+    laser_poses = se2_compose(true_poses, np.broadcast_to(offset, true_poses.shape))
     headings = laser_poses[:, 2:3] + angles[None, :]
     ranges = raycast(walls, laser_poses[:, :2], headings, max_range)
     noisy = ranges + rng.normal(0.0, range_std, ranges.shape)
     no_return = ~np.isfinite(ranges)
     noisy = np.where(no_return, max_range, np.maximum(noisy, 1e-3))
 
-    steps = _between(true_poses[:-1], true_poses[1:])
+    steps = se2_between(true_poses[:-1], true_poses[1:])
     lin = np.hypot(steps[:, 0], steps[:, 1])
     noisy_steps = steps.copy()
     noisy_steps[:, 0] = steps[:, 0] * (1 + odom_scale_error) + rng.normal(0, 1, lin.shape) * odom_linear_std * lin
@@ -254,7 +242,7 @@ def simulate(
     odom = np.empty_like(true_poses)
     odom[0] = true_poses[0]
     for k in range(1, num_scans):
-        odom[k] = _compose(odom[k - 1], noisy_steps[k - 1])
+        odom[k] = se2_compose(odom[k - 1], noisy_steps[k - 1])
 
     times = 1000.0 + np.arange(num_scans) / rate
     valid = ~no_return
@@ -274,7 +262,7 @@ def simulate(
         max_range=float(max_range),
         laser_offset=offset,
         odom_poses=odom,
-        laser_poses=_compose(odom, np.broadcast_to(offset, odom.shape)),
+        laser_poses=se2_compose(odom, np.broadcast_to(offset, odom.shape)),
         odom_times=times.copy(),
         odom_readings=odom.copy(),
         params={},

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from jaxslam.metrics.trajectory_io import wrap_angle
+from jaxslam.datasets.geometry import wrap_angle
 
 
 def pose_errors(estimates: np.ndarray, truth: np.ndarray) -> np.ndarray:
