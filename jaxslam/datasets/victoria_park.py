@@ -462,20 +462,36 @@ def load_dead_reckoning(release: str = "mat", path: os.PathLike | str | None = N
         DataFormatError: see the module docstring (input checks).
     """
     default = {"mat": ("mat", "aa3_dr.npz"), "ascii": ("acfr_ascii", "DRS.txt")}
+    times, speed, steering = _load_timed_table(
+        release, path, default, ("time", "speed", "steering"), "time_s speed_m_s steering_rad"
+    )
+    return DeadReckoning(times=times, speed=speed, steering=steering)
+
+
+def _load_timed_table(
+    release: str,
+    path: os.PathLike | str | None,
+    default: dict[str, tuple[str, ...]],
+    npz_names: tuple[str, str, str],
+    text_header: str,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(times [s], column 1, column 2)`` from a ``.npz`` (time in ms, arrays named
+    ``npz_names``) or a text table ``time_s a b``; times strictly increasing."""
     if release not in default:
         raise ValueError(f"release must be 'mat' or 'ascii', got {release!r}")
     file = _locate(default[release], path)
     if file.suffix == ".npz":
-        arrays = _load_npz(file, ["time", "speed", "steering"])
-        time_ms, speed, steering = (arrays[n].reshape(-1).astype(np.float64) for n in ("time", "speed", "steering"))
-        _same_length(file, time=time_ms, speed=speed, steering=steering)
-        _finite_columns(file, time=time_ms, speed=speed, steering=steering)
+        arrays = _load_npz(file, list(npz_names))
+        columns = {n: arrays[n].reshape(-1).astype(np.float64) for n in npz_names}
+        _same_length(file, **columns)
+        _finite_columns(file, **columns)
+        time_ms, first, second = (columns[n] for n in npz_names)
         times, lines = ms_to_s(time_ms), None
     else:
-        table, lines = _read_records(file, 3, "time_s speed_m_s steering_rad")
-        times, speed, steering = (column.copy() for column in table.T)
+        table, lines = _read_records(file, 3, text_header)
+        times, first, second = (column.copy() for column in table.T)
     _check_increasing(file, times, strict=True, lines=lines)
-    return DeadReckoning(times=times, speed=speed, steering=steering)
+    return times, first, second
 
 
 def load_gps(release: str = "mat", path: os.PathLike | str | None = None) -> GpsFixes:
@@ -491,19 +507,8 @@ def load_gps(release: str = "mat", path: os.PathLike | str | None = None) -> Gps
         DataFormatError: see the module docstring (input checks).
     """
     default = {"mat": ("mat", "aa3_gpsx.npz"), "ascii": ("acfr_ascii", "GPS.txt")}
-    if release not in default:
-        raise ValueError(f"release must be 'mat' or 'ascii', got {release!r}")
-    file = _locate(default[release], path)
-    if file.suffix == ".npz":
-        arrays = _load_npz(file, ["timeGps", "Lo_m", "La_m"])
-        time_ms, east, north = (arrays[n].reshape(-1).astype(np.float64) for n in ("timeGps", "Lo_m", "La_m"))
-        _same_length(file, timeGps=time_ms, Lo_m=east, La_m=north)
-        _finite_columns(file, timeGps=time_ms, Lo_m=east, La_m=north)
-        times, xy, lines = ms_to_s(time_ms), np.stack([east, north], axis=1), None
-    else:
-        table, lines = _read_records(file, 3, "time_s x_m y_m")
-        times, xy = table[:, 0].copy(), table[:, 1:].copy()
-    _check_increasing(file, times, strict=True, lines=lines)
+    times, east, north = _load_timed_table(release, path, default, ("timeGps", "Lo_m", "La_m"), "time_s x_m y_m")
+    xy = np.stack([east, north], axis=1)
     return GpsFixes(times=times, xy=xy)
 
 
