@@ -83,7 +83,9 @@ def _overrides_dict(overrides) -> dict[str, float]:
 # --------------------------------------------------------------------------- landmark
 
 
-def _load_landmark_sequence(info: DatasetInfo, max_steps: int | None, seed: int):
+def load_landmark_sequence(info: DatasetInfo, max_steps: int | None, seed: int):
+    """The sequence of a landmark dataset (the simulator draws its world from ``seed``),
+    cut to ``max_steps`` scans."""
     if info.name == "sim-landmarks":
         from jaxslam.datasets import landmark_sim
 
@@ -149,7 +151,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.trajectory_io import write_tum
 
-    sequence = _load_landmark_sequence(info, max_steps, seed)
+    sequence = load_landmark_sequence(info, max_steps, seed)
     result = run_landmark_slam(
         sequence, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
         progress=progress, chunk=chunk or 512, dtype=dtype, checkpoint=checkpoint,
