@@ -92,6 +92,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--set", dest="overrides", type=_override, action="append", default=[], metavar="NAME=VALUE",
                      help="override a noise level or threshold of the filter's Params (repeatable); "
                           "`jaxslam run --list-params --algorithm A` lists names, units and defaults")
+    run.add_argument("--linear-update", type=float, default=None, metavar="M",
+                     help="laser data: process a scan after this much odometric travel (GMapping linearUpdate); "
+                          "default: the dataset's rule (1.0; FR079 every scan)")
+    run.add_argument("--angular-update", type=float, default=None, metavar="RAD",
+                     help="laser data: ... or this much odometric rotation (angularUpdate; default 0.5, FR079 0)")
+    run.add_argument("--temporal-update", type=float, default=None, metavar="S",
+                     help="laser data: ... or after this many seconds (temporalUpdate; default -1: off)")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",

@@ -221,7 +221,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
-             checkpoint=None):
+             checkpoint=None, keyframes=None):
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.trajectory_io import write_tum
 
@@ -238,10 +238,12 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
         progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
         **({"checkpoint": checkpoint} if checkpoint is not None else {}),
+        **{f"{k}_update": v for k, v in (keyframes or {}).items()},
     )
     summary: dict[str, Any] = {
         "algorithm": algorithm, "dataset": name, "particles": particles, "seed": seed,
         "scans": int(result.scan_times.shape[0]), "keyframes": int(result.keyframes.shape[0]),
+        "keyframe_rule": result.summary()["keyframe_rule"],
         "wall_s": result.wall_s, "compile_s": result.compile_s,
         "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name,
@@ -288,6 +290,7 @@ def run(
     plots: bool = True,
     checkpoint_every: int | None = None,
     resume: bool = False,
+    keyframes: dict[str, float] | None = None,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -295,6 +298,8 @@ def run(
     ``out/checkpoint.npz`` every that many steps; ``resume`` continues from it (and
     refuses a checkpoint of a different run). The run's arguments are recorded in
     ``out/run.json`` so that ``jaxslam run --resume OUT`` needs nothing else.
+    ``keyframes`` (laser data only) sets any of ``linear``, ``angular``, ``temporal``
+    of the keyframe rule (see :func:`jaxslam.grid.experiment.keyframe_rule`).
     """
     import jax
     import jax.numpy as jnp
@@ -310,6 +315,13 @@ def run(
         info.paths()  # raises DatasetNotFoundError naming what is missing
     overrides = dict(overrides or {})
     check_overrides(algorithm, overrides)
+    keyframes = {k: float(v) for k, v in (keyframes or {}).items() if v is not None}
+    unknown = set(keyframes) - {"linear", "angular", "temporal"}
+    if unknown:
+        raise RunError(f"unknown keyframe threshold(s) {sorted(unknown)}; use linear, angular, temporal")
+    if keyframes and kind != "laser":
+        raise RunError("keyframe thresholds (--linear-update/--angular-update/--temporal-update) apply to laser "
+                       "data only; the landmark filters process every scan")
     particles = particles or DEFAULT_PARTICLES[kind]
     if float64:
         jax.config.update("jax_enable_x64", True)
@@ -319,6 +331,8 @@ def run(
     dataset_name = info.name if info is not None else str(Path(path).resolve())
     run_args = {"dataset": dataset_name, "algorithm": algorithm, "particles": particles, "seed": seed,
                 "max_steps": max_steps, "overrides": overrides, "float64": float64, "chunk": chunk}
+    if keyframes:
+        run_args["keyframes"] = keyframes
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint
@@ -335,7 +349,7 @@ def run(
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
     if kind == "laser":
         args = (info, path) + args[1:]
-    summary = runner(*args, checkpoint=checkpoint)
+    summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}))
     summary["resumed"] = bool(resume)
     summary["overrides"] = overrides
     summary["total_s"] = time.time() - started
@@ -370,6 +384,7 @@ def run_from_args(args) -> dict[str, Any] | None:
         out=args.out, dataset=args.dataset, algorithm=args.algorithm, particles=args.particles, seed=args.seed,
         max_steps=args.max_steps, overrides=_overrides_dict(args.overrides), progress=not args.no_progress,
         chunk=args.chunk, float64=args.float64, plots=not args.no_plots, checkpoint_every=args.checkpoint_every,
+        keyframes={"linear": args.linear_update, "angular": args.angular_update, "temporal": args.temporal_update},
     )
 
 

@@ -173,9 +173,12 @@ def test_interrupted_run_resumes_to_identical_outputs(tmp_path, monkeypatch, cap
 def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypatch):
     from jaxslam import checkpoint as ckpt
 
-    common = ("--algorithm", "srupf-gm", "--particles", "4", "--max-steps", "24", "--no-progress", "--no-plots")
+    common = ("--algorithm", "srupf-gm", "--particles", "4", "--max-steps", "24", "--no-progress", "--no-plots",
+              "--linear-update", "0.4")
     straight = tmp_path / "straight"
     assert run_cli("run", "--out", str(straight), *common) == 0
+    rule = json.loads((straight / "summary.json").read_text())["keyframe_rule"]
+    assert rule == {"linear_m": 0.4, "angular_rad": 0.5, "temporal_s": -1.0}
     original_save = ckpt.Checkpoint.save
 
     def save_then_crash(self, carry, done, leaves):
@@ -190,3 +193,9 @@ def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypa
     assert run_cli("run", "--resume", str(interrupted), "--no-progress", "--no-plots") == 0
     assert (interrupted / "trajectory.tum").read_text() == (straight / "trajectory.tum").read_text()
     assert (interrupted / "map.pgm").read_bytes() == (straight / "map.pgm").read_bytes()
+    assert json.loads((interrupted / "run.json").read_text())["keyframes"] == {"linear": 0.4}
+
+
+def test_keyframe_thresholds_are_for_laser_data_only(capsys, tmp_path):
+    assert run_cli("run", "--out", str(tmp_path / "o"), "--linear-update", "0.5") == 2
+    assert "laser data only" in capsys.readouterr().err

@@ -51,6 +51,26 @@ DATASET_BOUNDS = {
 # Per-dataset parameter defaults (on top of default_params).
 DATASET_PARAMS: dict[str, dict[str, Any]] = {}
 
+# Keyframe rule (GMapping's linearUpdate m, angularUpdate rad, temporalUpdate s; a
+# negative temporal update disables it).
+DEFAULT_KEYFRAMES = (1.0, 0.5, -1.0)
+# FR079: every scan. Its wheel odometry misses rotations of the robot while it stands
+# or creeps in doorways: over scans 826-828 the scans turn by -25 deg in 0.6 s while
+# the odometry reports -4 deg (and +24 deg against -18 deg over scans 783-818). A rule
+# driven by odometry cannot notice such motion, and the error piles up between
+# keyframes beyond the matcher's reach; with every scan it stays below about 10 deg
+# per step. GMapping's own corrected FR079 log likewise processed 4791 of its 4934
+# scans. (Measured, 30 particles: 1.0/0.5 gives 3.6 m / 13 deg, 0.2/0.1 gives
+# 4.2 m / 15 deg, every scan 0.046 m / 0.6 deg; see benchmarks/grid_maps.py.)
+DATASET_KEYFRAMES: dict[str, tuple[float, float, float]] = {"fr079": (0.0, 0.0, -1.0)}
+
+
+def keyframe_rule(name: str, linear=None, angular=None, temporal=None) -> tuple[float, float, float]:
+    """``(linear, angular, temporal)`` thresholds: the given ones, else the dataset's."""
+    base = DATASET_KEYFRAMES.get(name, DEFAULT_KEYFRAMES)
+    given = (linear, angular, temporal)
+    return tuple(float(b if g is None else g) for g, b in zip(given, base, strict=True))
+
 
 @dataclasses.dataclass
 class GridSlamResult:
@@ -89,6 +109,7 @@ class GridSlamResult:
     config: GridSlamConfig
     params: dict[str, Any]
     state: Any = None
+    keyframe_rule: tuple[float, float, float] = DEFAULT_KEYFRAMES
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready scalars."""
@@ -99,6 +120,7 @@ class GridSlamResult:
             "seed": self.seed,
             "scans": int(self.trajectory.shape[0]),
             "keyframes": int(self.keyframes.shape[0]),
+            "keyframe_rule": dict(zip(("linear_m", "angular_rad", "temporal_s"), self.keyframe_rule, strict=True)),
             "wall_s": self.wall_s,
             "compile_s": self.compile_s,
             "resamplings": self.resamplings,
@@ -154,8 +176,9 @@ def run_grid_slam(
     *,
     config: dict[str, Any] | None = None,
     progress: bool = True,
-    linear_update: float = 1.0,
-    angular_update: float = 0.5,
+    linear_update: float | None = None,
+    angular_update: float | None = None,
+    temporal_update: float | None = None,
     resolution: float = 0.05,
     margin: float = 20.0,
     bounds: tuple[float, float, float, float] | None = None,
@@ -178,7 +201,10 @@ def run_grid_slam(
             (``match_stride``, ``match_iterations``, ``refine_steps``, ``matcher``,
             ``resampler``, ``max_points``).
         progress: show the progress bar.
-        linear_update, angular_update: keyframe thresholds (GMapping's defaults).
+        linear_update, angular_update, temporal_update: keyframe thresholds (m, rad,
+            s; GMapping's linearUpdate, angularUpdate, temporalUpdate). ``None``: the
+            dataset's rule (:data:`DATASET_KEYFRAMES`), else GMapping's defaults
+            1.0 m, 0.5 rad, no temporal update.
         resolution: cell size (m).
         margin: margin around the odometry box when the dataset has no known box
             (raw odometry can drift far from the corrected path: FR079's needs about
@@ -192,7 +218,8 @@ def run_grid_slam(
     """
     name = _dataset_name(log_or_sim)
     log = log_or_sim if isinstance(log_or_sim, CarmenLog) else load_dataset_log(log_or_sim)
-    keyframes = select_keyframes(log.odom_poses, linear_update, angular_update)
+    rule = keyframe_rule(name, linear_update, angular_update, temporal_update)
+    keyframes = select_keyframes(log.odom_poses, *rule, times=log.scan_times)
     if max_keyframes is not None:
         keyframes = keyframes[:max_keyframes]
     if keyframes.shape[0] < 2:
@@ -275,7 +302,8 @@ def run_grid_slam(
         config=cfg,
         params={k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"},
         state=jax.tree_util.tree_map(np.asarray, state),
+        keyframe_rule=rule,
     )
 
 
-__all__ = ["ALGORITHMS", "DATASET_BOUNDS", "GridSlamResult", "grid_spec_for", "make_config", "run_grid_slam"]
+__all__ = ["ALGORITHMS", "DATASET_BOUNDS", "DATASET_KEYFRAMES", "DEFAULT_KEYFRAMES", "GridSlamResult", "grid_spec_for", "keyframe_rule", "make_config", "run_grid_slam"]
