@@ -6,12 +6,15 @@ the benchmark has relations (Intel, FR079), in ``grid_maps.json``.
     python benchmarks/grid_maps.py [--datasets intel fr079 mit-csail] [--particles 30]
         [--algorithms srupf-gm gmapping srupf-gm-npc] [--pgm DIR]
 
-``--pgm DIR`` also keeps the ROS map_server PGM + YAML (large) under ``DIR``.
+``--pgm DIR`` also keeps the ROS map_server PGM + YAML (large) under ``DIR``. Runs
+of other datasets or filters already in ``grid_maps.json`` (same particle count) are
+kept, so ``--datasets fr079`` refreshes only FR079's entries.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 from pathlib import Path
 
@@ -45,7 +48,17 @@ def main() -> None:
             print(dataset, algorithm, {k: rec.get(k) for k in ("wall_s", "trans_err_mean_m", "rot_err_mean_deg",
                                                                 "png", "error")}, flush=True)
             records.append(rec)
-    save_json(RESULTS / "grid_maps.json", {"runs": records, "particles": args.particles, "machine": machine_info()})
+    path = RESULTS / "grid_maps.json"
+    done = {(r["dataset"], r["algorithm"]) for r in records}
+    machines = {"machine": machine_info()}
+    if path.exists():
+        old = json.loads(path.read_text())
+        if old.get("particles") == args.particles:
+            kept = [r for r in old["runs"] if (r["dataset"], r["algorithm"]) not in done]
+            if kept:
+                machines["machine_of_kept_runs"] = old.get("machine_of_kept_runs", old.get("machine"))
+            records = kept + records
+    save_json(path, {"runs": records, "particles": args.particles, **machines})
 
 
 if __name__ == "__main__":
