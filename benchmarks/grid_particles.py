@@ -70,6 +70,25 @@ def main() -> None:
     ap.add_argument("--skip-noise", action="store_true")
     args = ap.parse_args()
 
+    # Built before any run, so that a problem here cannot throw away a long sweep.
+    noise_params = {} if args.skip_noise else {
+        (a, scale): noise_overrides(a, scale) for a in args.algorithms for scale in args.noise_scales}
+    reference = GMAPPING_CPP_INTEL_S if args.dataset == "intel" else {}
+
+    def save(sweep, noise):
+        payload = {"dataset": args.dataset, "particles": args.particles, "seeds": args.seeds, "sweep": sweep,
+                   "noise_sweep": noise, "noise_particles": args.noise_particles,
+                   "gmapping_cpp_reference_s": reference, "gmapping_cpp_peak_mb": GMAPPING_CPP_PEAK_MB,
+                   "machine": machine_info()}
+        for algorithm, rows in sweep.items():
+            speedups = {}
+            for n, t in reference.items():
+                s = rows.get(str(n), {}).get("summary", {})
+                if s.get("n_ok"):
+                    speedups[str(n)] = t / s["wall_mean_s"]
+            payload.setdefault("speedup_vs_gmapping_cpp", {})[algorithm] = speedups
+        save_json(RESULTS / f"grid_particles_{args.dataset}.json", payload)
+
     sweep = {}
     for algorithm in args.algorithms:
         sweep[algorithm] = {}
@@ -82,6 +101,7 @@ def main() -> None:
                                                                   "rot_err_mean_deg", "error")}, flush=True)
                 records.append(rec)
             sweep[algorithm][str(n)] = {"summary": summarise(records), "runs": records}
+    save(sweep, {})
 
     noise = {}
     if not args.skip_noise:
@@ -90,24 +110,13 @@ def main() -> None:
             for scale in args.noise_scales:
                 rec = run_in_subprocess({"dataset": args.dataset, "algorithm": algorithm,
                                          "particles": args.noise_particles, "seed": 0,
-                                         "params": noise_overrides(algorithm, scale)})
+                                         "params": noise_params[algorithm, scale]})
                 print("noise", algorithm, scale, {k: rec.get(k) for k in ("wall_s", "trans_err_mean_m", "error")},
                       flush=True)
                 noise[algorithm][str(scale)] = {"summary": summarise([rec]), "runs": [rec]}
 
-    reference = GMAPPING_CPP_INTEL_S if args.dataset == "intel" else {}
-    payload = {"dataset": args.dataset, "particles": args.particles, "seeds": args.seeds, "sweep": sweep,
-               "noise_sweep": noise, "noise_particles": args.noise_particles,
-               "gmapping_cpp_reference_s": reference, "gmapping_cpp_peak_mb": GMAPPING_CPP_PEAK_MB,
-               "machine": machine_info()}
-    for algorithm, rows in sweep.items():
-        speedups = {}
-        for n, t in reference.items():
-            s = rows.get(str(n), {}).get("summary", {})
-            if s.get("n_ok"):
-                speedups[str(n)] = t / s["wall_mean_s"]
-        payload.setdefault("speedup_vs_gmapping_cpp", {})[algorithm] = speedups
-    save_json(RESULTS / f"grid_particles_{args.dataset}.json", payload)
+    if noise:
+        save(sweep, noise)
 
     import matplotlib
 
