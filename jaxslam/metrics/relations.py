@@ -37,7 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.paths import DataFormatError, find, numeric_rows
 from jaxslam.metrics.trajectory_io import se2_between
 
 __all__ = [
@@ -109,28 +109,9 @@ def load_relations(path: os.PathLike | str) -> Relations:
             z/roll/pitch, or no relations; the message names the file and line.
     """
     path = Path(path)
-    try:
-        text = path.read_bytes().decode("utf-8", "replace")
-    except IsADirectoryError as error:
-        raise DataFormatError(path, None, "is a directory, not a relations file") from error
     rows: list[tuple[float, ...]] = []
     lines: list[int] = []
-    for line_number, line in enumerate(text.split("\n"), start=1):
-        fields = line.split()
-        if not fields or fields[0].startswith("#"):
-            continue
-        if len(fields) != 8:
-            raise DataFormatError(
-                path,
-                line_number,
-                f"expected 8 fields 't1 t2 x y z roll pitch yaw', got {len(fields)}",
-            )
-        try:
-            values = tuple(float(field) for field in fields)
-        except ValueError:
-            raise DataFormatError(path, line_number, "a field is not a number") from None
-        if not all(math.isfinite(value) for value in values):
-            raise DataFormatError(path, line_number, "a field is not finite")
+    for line_number, values in numeric_rows(path, "t1 t2 x y z roll pitch yaw", "relations file"):
         if max(abs(values[4]), abs(values[5]), abs(values[6])) > _PLANAR_TOL:
             raise DataFormatError(
                 path, line_number, "z, roll and pitch must be 0 for a planar relation"

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
-from jaxslam.datasets.paths import DataFormatError
+from jaxslam.datasets.paths import DataFormatError, numeric_rows
 
 __all__ = [
     "interpolate_poses",
@@ -101,29 +101,10 @@ def read_tum(
             file and line.
     """
     path = Path(path)
-    try:
-        text = path.read_bytes().decode("utf-8", "replace")
-    except IsADirectoryError as error:
-        raise DataFormatError(path, None, "is a directory, not a TUM file") from error
     stamps: list[float] = []
     poses: list[tuple[float, float, float]] = []
-    for line_number, line in enumerate(text.split("\n"), start=1):
-        fields = line.replace(",", " ").split()
-        if not fields or fields[0].startswith("#"):
-            continue
-        if len(fields) != 8:
-            raise DataFormatError(
-                path,
-                line_number,
-                f"expected 8 fields 'timestamp x y z qx qy qz qw', got {len(fields)}",
-            )
-        try:
-            t, x, y, _z, qx, qy, qz, qw = (float(field) for field in fields)
-        except ValueError:
-            raise DataFormatError(path, line_number, "a field is not a number") from None
-        values = (t, x, y, _z, qx, qy, qz, qw)
-        if not all(math.isfinite(value) for value in values):
-            raise DataFormatError(path, line_number, "a field is not finite")
+    rows = numeric_rows(path, "timestamp x y z qx qy qz qw", "TUM file", commas=True)
+    for line_number, (t, x, y, _z, qx, qy, qz, qw) in rows:
         norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
         if norm < 1e-9:
             raise DataFormatError(path, line_number, "the quaternion is zero")
