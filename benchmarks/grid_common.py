@@ -67,10 +67,13 @@ def worker(spec: dict) -> dict:
     return record
 
 
-def run_in_subprocess(spec: dict, timeout: float = 3600.0) -> dict:
-    """Run :func:`worker` in a fresh Python process; returns its record (or an error)."""
+def run_in_subprocess(spec: dict, timeout: float = 3600.0, tree: str | os.PathLike | None = None) -> dict:
+    """Run :func:`worker` in a fresh Python process; returns its record (or an error).
+
+    ``tree``: import jaxslam from another source tree (e.g. a checkout of an older
+    commit, to time old and new code in the same run)."""
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONPATH"] = str(tree or ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", json.dumps(spec)]
     try:
         out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, check=False)

@@ -24,7 +24,7 @@ import numpy as np
 
 from jaxslam.datasets.carmen import CarmenLog, load_dataset_log, select_keyframes
 from jaxslam.grid import gmapping, srupf
-from jaxslam.grid.driver import RunStats, run_filter
+from jaxslam.grid.driver import run_filter
 from jaxslam.grid.filter import best_particle
 from jaxslam.grid.paged import PagedLayout, pool_stats, stitch, window_side
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, Scan, default_params
@@ -264,7 +264,10 @@ def run_grid_slam(
     valid = np.asarray(log.valid[keyframes]) & np.isfinite(ranges)
     ranges = np.where(valid, ranges, 0.0)
     cfg_over = dict(config or {})
-    window_range = float(cfg_over.pop("window_range", max(usable, 1.0)))
+    # Static bound on the usable range (it sizes the tile window of a write): 20 m or
+    # the usable range rounded up to 10 m, so that sweeping usable_range below it
+    # never recompiles.
+    window_range = float(cfg_over.pop("window_range", max(20.0, 10.0 * np.ceil(usable / 10.0))))
     layout = map_layout(log, keyframes, resolution, margin, particles, window_range, bounds)
     if pool_slots is not None:
         layout = dataclasses.replace(layout, slots=int(pool_slots))

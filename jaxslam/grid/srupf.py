@@ -50,7 +50,6 @@ resampling are as in GMapping (:func:`jaxslam.grid.filter.finish_step`).
 
 from __future__ import annotations
 
-from functools import partial
 from typing import NamedTuple
 
 import jax

@@ -219,7 +219,8 @@ def relations_metric(
         tolerance: stamp matching tolerance (s).
 
     Returns:
-        ``trans_err_mean_m``, ``trans_err_std_m``, ``rot_err_mean_deg``,
+        ``trans_err_mean_m``, ``trans_err_std_m``, ``trans_err_median_m``,
+        ``trans_err_max_m``, ``n_trans_err_over_0_5m``, ``rot_err_mean_deg``, ``rot_err_median_deg``,
         ``rot_err_std_deg``, ``trans_sq_err_mean_m2``, ``trans_sq_err_std``,
         ``rot_sq_err_mean_deg2``, ``rot_sq_err_std``, and the counts
         ``n_relations`` (scored), ``n_unmatched`` (not scored: a stamp had no pose
@@ -236,7 +237,11 @@ def relations_metric(
     return {
         "trans_err_mean_m": stat(trans, np.mean),
         "trans_err_std_m": stat(trans, np.std),
+        "trans_err_median_m": stat(trans, np.median),
+        "trans_err_max_m": stat(trans, np.max),
+        "n_trans_err_over_0_5m": int(np.sum(trans > 0.5)),
         "rot_err_mean_deg": stat(rot, np.mean),
+        "rot_err_median_deg": stat(rot, np.median),
         "rot_err_std_deg": stat(rot, np.std),
         "trans_sq_err_mean_m2": stat(trans**2, np.mean),
         "trans_sq_err_std": stat(trans**2, np.std),
