@@ -233,19 +233,23 @@ def load_reference_log(name_or_path: os.PathLike | str) -> ReferenceLog:
     """Read a GMapping-corrected log: reference poses, stamps and range text.
 
     The log is parsed by :func:`jaxslam.datasets.carmen.load_carmen` (its errors name
-    the file and line); the range tokens are then taken verbatim from the scan lines
+    the file and line), with the reading options of
+    :func:`jaxslam.datasets.carmen.load_dataset_log` when the file is one it knows; the range tokens are then taken verbatim from the scan lines
     it reports. Only FLASER logs are accepted (the corrected logs are FLASER).
 
     Raises:
         DataFormatError: the log is not a FLASER log, or a scan line disagrees with
             the parsed scan.
     """
-    from jaxslam.datasets.carmen import load_carmen
+    from jaxslam.datasets.carmen import DATASET_LOGS, load_carmen, load_dataset_log
 
     path = _resolve(name_or_path)
     # Corrected logs may have stamps going back arbitrarily (infinite-corridor);
-    # they are replaced below, so accept any step here.
-    log = load_carmen(path, max_backstep=np.inf)
+    # they are replaced below, so accept any step here. A file the reader knows by
+    # name gets its reading options (e.g. the range limit below a no-return pile).
+    stem = path.name.split(".")[0]
+    known = stem in DATASET_LOGS and Path(DATASET_LOGS[stem][1]).name == path.name
+    log = load_dataset_log(stem, max_backstep=np.inf) if known else load_carmen(path, max_backstep=np.inf)
     if log.message != "FLASER":
         raise DataFormatError(path, None, f"expected a FLASER log, got {log.message}")
     raw = gzip.open(path, "rb").read() if path.read_bytes()[:2] == b"\x1f\x8b" else path.read_bytes()
