@@ -95,6 +95,8 @@ def worker(spec: dict) -> dict:
         seed=int(spec["seed"]),
         progress=False,
         max_keyframes=spec.get("max_keyframes"),
+        params=spec.get("params") or None,
+        config=spec.get("config") or None,
         **kwargs,
     )
     record = result.summary()
@@ -244,6 +246,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tag", default="", help="suffix of the JSON and maps folder")
     parser.add_argument("--timeout", type=float, default=1800.0)
     parser.add_argument("--no-maps", action="store_true")
+    parser.add_argument("--variant", action="append", default=[], metavar="NAME=JSON",
+                        help='jaxslam settings to compare in one run, e.g. wide={"params": {"score_sigma": 0.2}} '
+                             '(keys "params" and "config" of run_grid_slam; repeatable; default: the defaults)')
     parser.add_argument("--work", default="/tmp/grid_robustness", help="scratch folder (logs, trajectories)")
     args = parser.parse_args(argv)
 
@@ -269,6 +274,16 @@ def main(argv: list[str] | None = None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     entries = prepare_logs(args, work)
     rule = list(GMAPPING_KEYFRAMES) if args.keyframes == "default" else None
+    variants: list[tuple[str, dict]] = []
+    for item in args.variant:
+        name, _, text = item.partition("=")
+        settings = json.loads(text or "{}")
+        if not name or set(settings) - {"params", "config"}:
+            raise SystemExit(f"--variant {item!r}: want NAME=JSON with keys 'params'/'config'")
+        variants.append((name, settings))
+    variants = variants or [("", {})]
+    runs = [(f, "", {}) for f in filters if f == "gmapping-cpp"]
+    runs = [(f, v, settings) for f in filters if f != "gmapping-cpp" for v, settings in variants] + runs
 
     payload: dict[str, Any] = {
         "machine": machine_info(),
@@ -280,10 +295,12 @@ def main(argv: list[str] | None = None) -> int:
     rows = payload["runs"]
     for entry in entries:
         log = entry["carmen"]
-        for algorithm in filters:
-            tag = f"{entry['log']}_{algorithm}_s{entry['seed']}"
+        for algorithm, variant, settings in runs:
+            label = f"{algorithm}[{variant}]" if variant else algorithm
+            tag = f"{entry['log']}_{label}_s{entry['seed']}".replace("[", "_").replace("]", "")
             row: dict[str, Any] = {"log": entry["log"], "kind": entry["kind"], "seed": entry["seed"],
-                                   "filter": algorithm, "particles": args.particles,
+                                   "filter": label, "variant": variant, "settings": settings,
+                                   "particles": args.particles,
                                    "scans": log.num_scans, "load_avg": os.getloadavg()[0]}
             if entry.get("stamps_replaced"):
                 row["stamps_replaced"] = entry["stamps_replaced"]
@@ -302,6 +319,7 @@ def main(argv: list[str] | None = None) -> int:
                 else:
                     spec = {"log": entry["source"], "algorithm": algorithm, "particles": args.particles,
                             "seed": entry["seed"], "keyframe_rule": rule, "max_keyframes": args.max_keyframes,
+                            "params": settings.get("params"), "config": settings.get("config"),
                             "out": str(work / f"{tag}.npz"),
                             "map_png": None if args.no_maps else str(maps_dir / f"{tag}.png")}
                     rec = run_worker(spec, args.timeout)
@@ -338,7 +356,8 @@ def main(argv: list[str] | None = None) -> int:
 def summarize(rows: list[dict]) -> list[dict]:
     """Per log and filter over seeds: the worst seed counts."""
     out = []
-    keys = sorted({(r["log"], r["filter"]) for r in rows}, key=lambda k: (k[0], FILTERS.index(k[1])))
+    keys = sorted({(r["log"], r["filter"]) for r in rows},
+                  key=lambda k: (k[0], FILTERS.index(k[1].split("[")[0]), k[1]))
     for log, algorithm in keys:
         group = [r for r in rows if r["log"] == log and r["filter"] == algorithm and "error" not in r]
         failed = sum(1 for r in rows if r["log"] == log and r["filter"] == algorithm and "error" in r)
