@@ -80,7 +80,7 @@ from jaxslam.grid.types import (
     as_odometry,
 )
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.matching import ellipse_factor, get_matcher
+from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
 from jaxslam.models.odometry import (
     Prediction,
@@ -133,29 +133,6 @@ def predict(pose: Array, pose_sqrt_cov: Array, control: Array, params: GridSlamP
     return sqrt_unscented_predict(pose, pose_sqrt_cov, control, noise_sqrt, ut_params(params))
 
 
-def prior_penalized(score_fn, prediction: Prediction, params: GridSlamParams):
-    r"""The corrector's objective with the motion prior, a MAP search:
-
-    .. math:: s'(x) = s(x) - \tfrac{\lambda}{2} \lVert S^{-1} (x \ominus \mu) \rVert^2
-
-    with :math:`S` the predicted factor (with ``ellipse_floor``), :math:`\mu` the
-    predicted mean and :math:`\lambda` = ``match_prior`` (beams per unit squared
-    Mahalanobis distance). A match far out in the prediction must then buy its
-    distance with matched beams; a flat or ambiguous score leaves the pose near the
-    odometry prediction instead of jumping to the edge of the search ellipse.
-    ``match_prior = 0`` is the likelihood alone.
-    """
-    factor = ellipse_factor(prediction.sqrt_cov, params)
-    weight = 0.5 * jnp.asarray(params.match_prior, prediction.mean.dtype)
-
-    def penalized(poses: Array) -> Array:
-        dev = se2.pose_residual(poses, prediction.mean)
-        w = jax.scipy.linalg.solve_triangular(factor, dev.T, lower=True)
-        return score_fn(poses) - weight * jnp.sum(w * w, 0)
-
-    return penalized
-
-
 def particle_update(
     key: Array,
     read: CellReader,
@@ -194,7 +171,7 @@ def particle_update(
     if config.correction == "pc":
         matcher = get_matcher(config.matcher)
         best, best_score = matcher(
-            prior_penalized(score_fn, prediction, params),
+            score_fn,
             start,
             prediction.sqrt_cov,
             params,
@@ -202,8 +179,6 @@ def particle_update(
             config.refine_steps,
             prior_mean=prediction.mean,
         )
-        # The acceptance test reads the score itself, not the prior-penalised one.
-        best_score = jnp.where(params.match_prior > 0, score_fn(best[None])[0], best_score)
         accept = best_score / count > params.min_score
         nu = jnp.where(accept, best, start)
     elif config.correction == "npc":

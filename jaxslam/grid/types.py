@@ -104,10 +104,7 @@ class GridSlamParams(NamedTuple):
     ``q_angular_per_rad``, ``q_angular_per_m`` (motion-proportional additions), ``ut_alpha``, ``ut_beta``,
     ``ut_kappa``, ``match_noise (3,)`` (std of the corrected pose, added to eq. 12 so
     that the downdate of eq. 16 leaves a positive definite factor; 0 gives the
-    paper's literal update), ``initial_std (3,)``, ``match_prior`` (weight of the
-    motion prior in the SRUPF-GM corrector: it maximises ``score(x) - match_prior
-    * d^2(x) / 2`` with ``d`` the Mahalanobis distance from the predicted mean;
-    0 = the likelihood alone).
+    paper's literal update), ``initial_std (3,)``.
     """
 
     beam_angles: Array
@@ -143,7 +140,6 @@ class GridSlamParams(NamedTuple):
     ut_kappa: Array
     match_noise: Array
     initial_std: Array
-    match_prior: Array
 
 
 def default_params(
@@ -198,7 +194,6 @@ def default_params(
         "ut_kappa": 0.0,
         "match_noise": np.array([0.02, 0.02, 0.01]),
         "initial_std": np.array([1e-3, 1e-3, 1e-3]),
-        "match_prior": 0.0,
     }
     unknown = set(overrides) - set(values)
     if unknown:
