@@ -86,10 +86,18 @@ def worker(spec: dict) -> dict:
     from jaxslam.grid.export import save_map
 
     t0 = time.perf_counter()
+    log = spec["log"]
+    laser = spec.get("laser_odometry")
+    if laser is not None:
+        from jaxslam.datasets.carmen import load_dataset_log
+        from jaxslam.grid.laser_odometry import LaserOdometryConfig, laser_corrected_log
+
+        log = laser_corrected_log(load_dataset_log(log), LaserOdometryConfig(**laser))
+    t_front = time.perf_counter() - t0
     rule = spec.get("keyframe_rule")
     kwargs = {} if rule is None else dict(zip(("linear_update", "angular_update", "temporal_update"), rule))
     result = run_grid_slam(
-        spec["log"],
+        log,
         spec["algorithm"],
         particles=int(spec["particles"]),
         seed=int(spec["seed"]),
@@ -101,6 +109,9 @@ def worker(spec: dict) -> dict:
     )
     record = result.summary()
     record["process_s"] = time.perf_counter() - t0
+    record["laser_odometry_s"] = t_front
+    if laser is not None:
+        record["laser_odometry_accepted"] = log.stats["laser_odometry_accepted"]
     out = Path(spec["out"])
     np.savez_compressed(
         out,
@@ -248,7 +259,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-maps", action="store_true")
     parser.add_argument("--variant", action="append", default=[], metavar="NAME=JSON",
                         help='jaxslam settings to compare in one run, e.g. wide={"params": {"score_sigma": 0.2}} '
-                             '(keys "params" and "config" of run_grid_slam; repeatable; default: the defaults)')
+                             '(keys "params" and "config" of run_grid_slam, and "laser_odometry": LaserOdometryConfig '
+                             'fields to run on jaxslam.grid.laser_odometry.laser_corrected_log; repeatable; '
+                             'default: the defaults)')
     parser.add_argument("--work", default="/tmp/grid_robustness", help="scratch folder (logs, trajectories)")
     args = parser.parse_args(argv)
 
@@ -278,8 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     for item in args.variant:
         name, _, text = item.partition("=")
         settings = json.loads(text or "{}")
-        if not name or set(settings) - {"params", "config"}:
-            raise SystemExit(f"--variant {item!r}: want NAME=JSON with keys 'params'/'config'")
+        if not name or set(settings) - {"params", "config", "laser_odometry"}:
+            raise SystemExit(f"--variant {item!r}: want NAME=JSON with keys 'params', 'config', 'laser_odometry'")
         variants.append((name, settings))
     variants = variants or [("", {})]
     runs = [(f, "", {}) for f in filters if f == "gmapping-cpp"]
@@ -320,6 +333,7 @@ def main(argv: list[str] | None = None) -> int:
                     spec = {"log": entry["source"], "algorithm": algorithm, "particles": args.particles,
                             "seed": entry["seed"], "keyframe_rule": rule, "max_keyframes": args.max_keyframes,
                             "params": settings.get("params"), "config": settings.get("config"),
+                            "laser_odometry": settings.get("laser_odometry"),
                             "out": str(work / f"{tag}.npz"),
                             "map_png": None if args.no_maps else str(maps_dir / f"{tag}.png")}
                     rec = run_worker(spec, args.timeout)
@@ -329,7 +343,9 @@ def main(argv: list[str] | None = None) -> int:
                     row.update({"wall_s": rec["wall_process_s"], "filter_s": rec["wall_s"],
                                 "compile_s": rec["compile_s"], "cpu_s": rec["cpu_s"],
                                 "keyframes": rec["keyframes"], "resamplings": rec["resamplings"],
-                                "map_growths": rec["map_growths"], "map_png": rec.get("map_png")})
+                                "map_growths": rec["map_growths"], "map_png": rec.get("map_png"),
+                                "laser_odometry_s": rec.get("laser_odometry_s"),
+                                "laser_odometry_accepted": rec.get("laser_odometry_accepted")})
                     traj, times, kf_i, kf_p = (data["trajectory"], data["scan_times"], data["keyframes"],
                                                data["keyframe_poses"])
                 row.update(score(entry["relations"], entry["short"], times, traj, kf_i, kf_p, log.odom_poses))
