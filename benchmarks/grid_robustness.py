@@ -30,7 +30,9 @@ Logs:
 Every filter uses the same defaults on every log: GMapping's keyframe rule (1 m,
 0.5 rad; ``--keyframes dataset`` uses jaxslam's per-dataset rule instead, for
 comparison) and ``run_grid_slam``'s default parameters. GMapping C++ gets the
-range limit jaxslam's reader took for the log, minus 0.01 (slam_gmapping's rule).
+range limit jaxslam's reader took for the log, minus 0.01 (slam_gmapping's rule), and
+runs at the script's own niceness, like the jaxslam workers (run the script under
+``nice``; compare ``cpu_s`` as well as ``wall_s`` on a shared machine).
 Each jaxslam run happens in a fresh process (``--worker``) that calls only
 :func:`jaxslam.grid.experiment.run_grid_slam`; its jitted code is cached on disk
 between runs of one log shape (``JAX_COMPILATION_CACHE_DIR``, default
@@ -322,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
                 if algorithm == "gmapping-cpp":
                     before = resource.getrusage(resource.RUSAGE_CHILDREN)
                     run = run_gmapping(log.path, args.particles, entry["seed"], log=log,
-                                       max_range=float(log.max_range) - 0.01, timeout=args.timeout,
+                                       max_range=float(log.max_range) - 0.01, timeout=args.timeout, nice=None,
                                        workdir=work / "gmapping")
                     after = resource.getrusage(resource.RUSAGE_CHILDREN)
                     row.update({"wall_s": run.wall_s, "filter_s": run.info.get("slam_s"),
