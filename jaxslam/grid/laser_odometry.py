@@ -33,7 +33,8 @@ each): against GMapping's corrected FR079 poses, the heading increments between
 consecutive scans err by 0.60 deg on average (wheels: 1.07 deg), but single false
 matches reach 20 deg (``min_gain`` 0.02) or 11 deg (0.1). FR079 with GMapping's
 keyframe rule: srupf-gm 3.29 m mean relations error on the wheel odometry, 4.48 m
-with ``min_gain`` 0.02, 1.49 m with 0.1 (every scan as a keyframe: 0.046 m). Intel:
+with ``min_gain`` 0.02, 1.49 m with 0.1 (every scan as a keyframe: 0.046 m, as noted at
+DATASET_KEYFRAMES; not re-run here). Intel:
 0.047 m -> 0.042 m (``min_gain`` 0.02). It does not yet replace FR079's
 every-scan keyframe rule.
 """
