@@ -241,7 +241,7 @@ def run_gmapping(
     log: Any = None,
     max_range: float | None = None,
     extra_args: Sequence[str] = (),
-    nice: int | None = 10,
+    nice: int | None = None,
     timeout: float | None = None,
     workdir: os.PathLike | str | None = None,
     stamp_tolerance: float = 2e-6,
@@ -257,7 +257,8 @@ def run_gmapping(
         max_range: passed as ``-maxrange`` (GMapping's default: the log's laser range
             minus 0.01; logs whose no-return readings sit above the real range need it).
         extra_args: more ``gmapping_carmen`` options.
-        nice: run under ``nice -n`` this (None: not reniced).
+        nice: run under ``nice -n`` this (default None: the caller's own niceness; a
+            niced caller plus nice 10 starves GMapping on a shared machine).
         timeout: seconds before the process is killed (GMappingRunError).
         workdir: where the TUM/KF files go (a temporary folder when None; kept).
         stamp_tolerance: see :func:`keyframes_to_scans`.
