@@ -207,6 +207,7 @@ def run_grid_slam(
     resolution: float = 0.05,
     margin: float = 20.0,
     bounds: tuple[float, float, float, float] | None = None,
+    pool_slots: int | None = None,
     max_keyframes: int | None = None,
     dtype=jnp.float32,
     chunk: int = 64,
@@ -234,6 +235,8 @@ def run_grid_slam(
         margin: margin (m) around the odometry box for the starting page table
             (:func:`map_layout`; the maps grow beyond it when needed).
         bounds: a starting map box ``(xmin, ymin, xmax, ymax)`` instead.
+        pool_slots: starting pool size in tiles (default: :func:`map_layout`'s
+            estimate); it doubles whenever a step needs more.
         max_keyframes: stop after this many keyframes (short runs, CI).
         dtype: float dtype of poses and params.
         chunk: keyframes per compiled chunk.
@@ -263,6 +266,8 @@ def run_grid_slam(
     cfg_over = dict(config or {})
     window_range = float(cfg_over.pop("window_range", max(usable, 1.0)))
     layout = map_layout(log, keyframes, resolution, margin, particles, window_range, bounds)
+    if pool_slots is not None:
+        layout = dataclasses.replace(layout, slots=int(pool_slots))
     max_points = cfg_over.pop("max_points", None)
     if max_points is None:
         need = required_points(np.minimum(ranges, usable), valid, resolution)

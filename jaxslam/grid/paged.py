@@ -269,40 +269,39 @@ def plan_writes(maps: PagedMaps, touched: Array, x0: Array, y0: Array, side: int
     code = jnp.where(outside, STATUS_OUTSIDE_TABLE, jnp.where(pool_full, STATUS_POOL_FULL, STATUS_OK))
     status = MapStatus(code.astype(jnp.int32), slots_needed, tile_lo, tile_hi)
 
-    def allocate(maps: PagedMaps):
-        free_slots = jnp.nonzero(free, size=need.shape[0], fill_value=0)[0].astype(jnp.int32)
-        rank = jnp.cumsum(need.astype(jnp.int32)) - 1
-        new_slot = jnp.where(need, free_slots[jnp.clip(rank, 0, need.shape[0] - 1)], flat_slot)
-        # Copies in batches of 32 tiles, only as many batches as this step needs.
-        which = jnp.nonzero(need, size=need.shape[0], fill_value=0)[0]
-        src = flat_slot[which]
-        dst = jnp.where(jnp.arange(need.shape[0]) < slots_needed, new_slot[which], layout.slots)
-        batch = 32
-        pad = -(-need.shape[0] // batch) * batch - need.shape[0]
-        src = jnp.pad(src, (0, pad))
-        dst = jnp.pad(dst, (0, pad), constant_values=layout.slots)
+    # No lax.cond here: a refused plan allocates nothing by masking (a conditional
+    # around the pool made XLA copy the whole pool every step).
+    ok = code == STATUS_OK
+    need = need & ok
+    slots_needed_ok = jnp.where(ok, slots_needed, 0)
+    free_slots = jnp.nonzero(free, size=need.shape[0], fill_value=0)[0].astype(jnp.int32)
+    rank = jnp.cumsum(need.astype(jnp.int32)) - 1
+    new_slot = jnp.where(need, free_slots[jnp.clip(rank, 0, need.shape[0] - 1)], flat_slot)
+    # Copies in batches of 32 tiles, only as many batches as this step needs.
+    which = jnp.nonzero(need, size=need.shape[0], fill_value=0)[0]
+    src = flat_slot[which]
+    dst = jnp.where(jnp.arange(need.shape[0]) < slots_needed_ok, new_slot[which], layout.slots)
+    batch = 32
+    pad = -(-need.shape[0] // batch) * batch - need.shape[0]
+    src = jnp.pad(src, (0, pad))
+    dst = jnp.pad(dst, (0, pad), constant_values=layout.slots)
 
-        def copy(i, pool):
-            s = jax.lax.dynamic_slice_in_dim(src, i * batch, batch)
-            d = jax.lax.dynamic_slice_in_dim(dst, i * batch, batch)
-            return pool.at[d].set(pool[s], mode="drop")
+    def copy(i, pool):
+        s = jax.lax.dynamic_slice_in_dim(src, i * batch, batch)
+        d = jax.lax.dynamic_slice_in_dim(dst, i * batch, batch)
+        return pool.at[d].set(pool[s], mode="drop")
 
-        pool = jax.lax.fori_loop(0, (slots_needed + batch - 1) // batch, copy, maps.pool)
-        refcount = maps.refcount.at[jnp.where(need, flat_slot, layout.slots)].add(-1, mode="drop")
-        refcount = refcount.at[jnp.where(need, new_slot, layout.slots)].set(1, mode="drop")
-        refcount = refcount.at[0].set(PINNED)
-        new_slot = new_slot.reshape(num_particles, k)
-        rows = jnp.arange(num_particles)[:, None]
-        tables = maps.tables.at[rows, jnp.where(need.reshape(num_particles, k), entry, layout.table_size)].set(
-            new_slot, mode="drop"
-        )
-        return PagedMaps(pool, tables, refcount), jnp.where(touched, new_slot, 0)
-
-    def refuse(maps: PagedMaps):
-        return maps, jnp.zeros((num_particles, k), jnp.int32)
-
-    new_maps, window_slots = jax.lax.cond(code == STATUS_OK, allocate, refuse, maps)
-    return WritePlan(x0, y0, window_slots, new_maps, status)
+    pool = jax.lax.fori_loop(0, (slots_needed_ok + batch - 1) // batch, copy, maps.pool)
+    refcount = maps.refcount.at[jnp.where(need, flat_slot, layout.slots)].add(-1, mode="drop")
+    refcount = refcount.at[jnp.where(need, new_slot, layout.slots)].set(1, mode="drop")
+    refcount = refcount.at[0].set(PINNED)
+    new_slot = new_slot.reshape(num_particles, k)
+    rows = jnp.arange(num_particles)[:, None]
+    tables = maps.tables.at[rows, jnp.where(need.reshape(num_particles, k), entry, layout.table_size)].set(
+        new_slot, mode="drop"
+    )
+    window_slots = jnp.where(touched & ok, new_slot, 0)
+    return WritePlan(x0, y0, window_slots, PagedMaps(pool, tables, refcount), status)
 
 
 def resample_maps(maps: PagedMaps, ancestors: Array, resampled: Array) -> PagedMaps:
@@ -311,13 +310,13 @@ def resample_maps(maps: PagedMaps, ancestors: Array, resampled: Array) -> PagedM
     Only page tables move; no cell is copied. Without resampling (``ancestors`` the
     identity) the recount is skipped.
     """
-    tables = maps.tables[ancestors]
 
-    def recount(_):
+    def take(tables_refcount):
+        tables = tables_refcount[0][ancestors]
         counts = jnp.zeros_like(maps.refcount).at[tables.reshape(-1)].add(1)
-        return counts.at[0].set(PINNED)
+        return tables, counts.at[0].set(PINNED)
 
-    refcount = jax.lax.cond(resampled, recount, lambda _: maps.refcount, None)
+    tables, refcount = jax.lax.cond(resampled, take, lambda tr: tr, (maps.tables, maps.refcount))
     return PagedMaps(maps.pool, tables, refcount)
 
 

@@ -455,10 +455,12 @@ def update_paged(
         use = ok & (slot > 0)
         return jnp.where(use, slot * layout.tile_cells + local_cell(cols, rows, layout), pool_size)
 
-    def write(pool):
-        return integrate_rays(pool.reshape(-1), rays, index_of, l_free, l_occ, l_max).reshape(pool.shape)
-
-    pool = jax.lax.cond(plan.status.code == STATUS_OK, write, lambda pool: pool, plan.maps.pool)
+    # A refused plan writes nothing: no chunk runs and every hit index is dropped
+    # (masks, not a conditional, which would copy the pool).
+    rays = rays._replace(num_chunks=jnp.where(plan.status.code == STATUS_OK, rays.num_chunks, 0),
+                         hits=rays.hits & (plan.status.code == STATUS_OK))
+    pool = plan.maps.pool
+    pool = integrate_rays(pool.reshape(-1), rays, index_of, l_free, l_occ, l_max).reshape(pool.shape)
     return plan.maps._replace(pool=pool), rays.dropped, plan.status
 
 

@@ -1,0 +1,225 @@
+"""Paged maps: equal to dense grids cell for cell, particles isolated, pool growth
+invisible in the results, tiles reclaimed, checkpoints of growing runs resume exactly."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxslam.checkpoint import Checkpoint
+from jaxslam.datasets.laser_sim import simulate
+from jaxslam.datasets.paths import DatasetNotFoundError
+from jaxslam.grid.experiment import run_grid_slam
+from jaxslam.grid.map import GridSpec
+from jaxslam.grid.paged import PINNED, PagedLayout, grow, init_maps, resample_maps, stitch
+from jaxslam.grid.update import update_grids, update_paged
+
+SPEC = GridSpec(1280, 1280, 0.05, -32.0, -32.0)  # the dense reference: 64 m x 64 m
+MAX_POINTS = 16384
+
+
+def dense_update(grids, poses, ranges, valid, angles):
+    return update_grids(grids, poses, ranges, valid, angles, jnp.zeros(3), SPEC, MAX_POINTS, 12.0, -1.0, 4.0, 40.0)[0]
+
+
+@functools.cache
+def paged_update(layout):
+    @jax.jit
+    def update(maps, poses, ranges, valid, angles):
+        return update_paged(maps, layout, poses, ranges, valid, angles, jnp.zeros(3), MAX_POINTS, 12.0, 12.0,
+                            -1.0, 4.0, 40.0)
+
+    return update
+
+
+def apply_paged(maps, layout, poses, ranges, valid, angles):
+    """One write, growing the layout on the host as the driver does."""
+    while True:
+        new, _, status = paged_update(layout)(maps, poses, ranges, valid, angles)
+        if int(status.code) == 0:
+            return new, layout
+        maps, layout = grow(maps, layout, status)
+
+
+def assert_same_as_dense(maps, layout, grids):
+    """Every particle's stitched map equals its dense grid; nothing lies outside."""
+    grids = np.asarray(grids)
+    for p in range(grids.shape[0]):
+        cells, (ox, oy) = stitch(maps.pool, maps.tables[p], layout)
+        c0 = int(round((ox - SPEC.origin_x) / SPEC.resolution))
+        r0 = int(round((oy - SPEC.origin_y) / SPEC.resolution))
+        expect = np.zeros_like(cells)
+        # the part of the stitched box that the dense grid covers
+        rs, cs = max(r0, 0), max(c0, 0)
+        re, ce = min(r0 + cells.shape[0], SPEC.height), min(c0 + cells.shape[1], SPEC.width)
+        expect[rs - r0 : re - r0, cs - c0 : ce - c0] = grids[p, rs:re, cs:ce]
+        np.testing.assert_array_equal(cells, expect, err_msg=f"particle {p}")
+        outside = grids[p].copy()
+        outside[rs:re, cs:ce] = 0
+        assert not outside.any(), f"particle {p} has cells outside its tiles"
+
+
+def check_refcounts(maps):
+    counts = np.bincount(np.asarray(maps.tables).ravel(), minlength=maps.refcount.shape[0])
+    refcount = np.asarray(maps.refcount)
+    assert refcount[0] == PINNED
+    np.testing.assert_array_equal(refcount[1:], counts[1:])
+
+
+@functools.cache
+def intel_segment(scans: int = 40):
+    from jaxslam.datasets.carmen import load_dataset_log
+
+    try:
+        log = load_dataset_log("intel")
+    except DatasetNotFoundError:
+        pytest.skip("intel log not available")
+    idx = np.arange(0, 8 * scans, 8)
+    ranges = np.where(log.valid[idx], log.ranges[idx], 0.0).astype(np.float32)
+    return log.odom_poses[idx].astype(np.float32), ranges, log.valid[idx], log.angles.astype(np.float32)
+
+
+def test_paged_equals_dense_on_real_scans():
+    """Intel scans at their odometry poses (3 particles jittered apart, resampled every
+    5th scan): cell for cell the dense result, in a layout that starts with one tile
+    and a 2-slot pool, so both the table and the pool grow along the way."""
+    poses, ranges, valid, angles = intel_segment()
+    rng = np.random.default_rng(0)
+    num = 3
+    layout = PagedLayout(0.05, 6, -1, -1, 1, 1, slots=2, origin_x=SPEC.origin_x, origin_y=SPEC.origin_y)
+    maps = init_maps(num, layout)
+    grids = jnp.zeros((num,) + SPEC.shape, jnp.int8)
+    angles = jnp.asarray(angles)
+    for t in range(poses.shape[0]):
+        p = jnp.asarray(poses[t] + rng.normal(0, 0.05, (num, 3)), jnp.float32)
+        r, v = jnp.asarray(ranges[t]), jnp.asarray(valid[t])
+        maps, layout = apply_paged(maps, layout, p, r, v, angles)
+        grids = dense_update(grids, p, r, v, angles)
+        if t % 5 == 4:
+            anc = jnp.asarray(np.sort(rng.integers(0, num, num)))
+            maps = resample_maps(maps, anc, jnp.asarray(True))
+            grids = grids[anc]
+        check_refcounts(maps)
+    assert layout.slots > 2 and layout.table_size > 1
+    assert_same_as_dense(maps, layout, grids)
+
+
+@settings(max_examples=6, deadline=None)
+@given(st.data())
+def test_one_particles_writes_never_change_another(data):
+    """Random resampling, and writes by two random particles of four (the others' page
+    tables are left out of the write; reference counts stay global): a particle
+    that did not write keeps its map exactly, and every particle's map equals its own
+    dense grid."""
+    num = 4
+    layout = PagedLayout.covering(-12.0, -12.0, 12.0, 12.0, 0.05, slots=8, origin=(SPEC.origin_x, SPEC.origin_y))
+    maps = init_maps(num, layout)
+    grids = jnp.zeros((num,) + SPEC.shape, jnp.int8)
+    angles = jnp.asarray(np.linspace(-np.pi, np.pi, 36, endpoint=False), jnp.float32)
+    for _ in range(data.draw(st.integers(2, 4))):
+        # two of the four write (one compiled shape); hypothesis picks which two
+        writers = np.sort(np.asarray(data.draw(st.permutations(range(num)))[:2]))
+        xy = np.asarray(data.draw(st.lists(st.floats(-4, 4), min_size=2 * num, max_size=2 * num))).reshape(num, 2)
+        poses = jnp.asarray(np.c_[xy, np.zeros(num)], jnp.float32)
+        r = jnp.asarray(data.draw(st.lists(st.floats(0.2, 6.0), min_size=36, max_size=36)), jnp.float32)
+        v = jnp.ones((36,), bool)
+        before = [stitch(maps.pool, maps.tables[p], layout)[0] for p in range(num)]
+        if writers.size:
+            idx = jnp.asarray(writers)
+            sub = maps._replace(tables=maps.tables[idx])
+            new, grown = apply_paged(sub, layout, poses[idx], r, v, angles)
+            assert grown.table_size == layout.table_size  # the box covers every write
+            layout = grown
+            maps = maps._replace(pool=new.pool, tables=maps.tables.at[idx].set(new.tables), refcount=new.refcount)
+            grids = grids.at[idx].set(dense_update(grids[idx], poses[idx], r, v, angles))
+        check_refcounts(maps)
+        for p in set(range(num)) - set(writers.tolist()):
+            np.testing.assert_array_equal(stitch(maps.pool, maps.tables[p], layout)[0], before[p])
+        anc = np.sort(np.asarray(data.draw(st.lists(st.integers(0, num - 1), min_size=num, max_size=num))))
+        maps = resample_maps(maps, jnp.asarray(anc), jnp.asarray(True))
+        grids = grids[anc]
+        check_refcounts(maps)
+    assert_same_as_dense(maps, layout, grids)
+
+
+def test_tiles_are_reclaimed_after_resampling():
+    """After every particle takes particle 0's map, the others' private tiles are free
+    again, and the next writes reuse them instead of growing the pool."""
+    num = 4
+    layout = PagedLayout.covering(-8.0, -8.0, 8.0, 8.0, 0.05, slots=512)
+    maps = init_maps(num, layout)
+    angles = jnp.asarray(np.linspace(-np.pi, np.pi, 90, endpoint=False), jnp.float32)
+    r = jnp.full((90,), 5.0, jnp.float32)
+    v = jnp.ones((90,), bool)
+    poses = jnp.asarray([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-1.0, -1.0, 0.0]], jnp.float32)
+    maps, layout = apply_paged(maps, layout, poses, r, v, angles)
+    used_before = int(np.sum(np.asarray(maps.refcount)[1:] > 0))
+    maps = resample_maps(maps, jnp.zeros((num,), jnp.int32), jnp.asarray(True))
+    check_refcounts(maps)
+    used_after = int(np.sum(np.asarray(maps.refcount)[1:] > 0))
+    assert used_after * num <= used_before + 3 * num  # only particle 0's tiles are left
+    highest = int(np.max(np.nonzero(np.asarray(maps.refcount)[1:] > 0)[0])) + 1
+    maps, layout2 = apply_paged(maps, layout, poses + 0.1, r, v, angles)
+    assert layout2 == layout  # no growth: the freed slots were enough
+    new_slots = np.setdiff1d(np.asarray(maps.tables).ravel(), [0])
+    assert new_slots.max() <= highest + used_before  # reused, not appended
+    check_refcounts(maps)
+
+
+@pytest.fixture(scope="module")
+def sim_log():
+    return simulate(width=12.0, height=8.0, rooms_x=2, laps=0.3, num_beams=61, seed=5)
+
+
+def _run(log, **kw):
+    return run_grid_slam(log, "srupf-gm", particles=3, seed=1, progress=False, linear_update=0.5,
+                         angular_update=0.3, config={"match_iterations": 3}, chunk=8, max_keyframes=33, **kw)
+
+
+SMALL = {"bounds": (0.0, 0.0, 12.0, 3.0), "pool_slots": 8}
+
+
+@pytest.fixture(scope="module")
+def growing_run(sim_log):
+    return _run(sim_log, **SMALL)
+
+
+def test_growing_run_equals_run_with_large_layout(sim_log, growing_run):
+    """A run that starts with a small pool and table (and grows both) gives the same
+    trajectory and map as one that starts large enough."""
+    large = _run(sim_log, margin=15.0, pool_slots=4096)
+    grew = {g["grew"] for g in growing_run.growths}
+    assert grew == {"pool", "page table"} and large.summary()["map_growths"] == 0
+    np.testing.assert_array_equal(growing_run.trajectory, large.trajectory)
+    np.testing.assert_array_equal(growing_run.map_log_odds, large.map_log_odds)
+    assert growing_run.origin == large.origin
+
+
+def test_checkpoint_of_growing_run_resumes_bit_for_bit(sim_log, growing_run, tmp_path):
+    """Interrupted after the maps grew, resumed from the checkpoint (which records the
+    grown layout): the same trajectory and map as the uninterrupted run."""
+    path = tmp_path / "ck.npz"
+    original_save = Checkpoint.save
+
+    class Crash(Exception):
+        pass
+
+    def save_then_crash(self, carry, done, leaves):
+        original_save(self, carry, done, leaves)
+        if done >= 8:
+            raise Crash
+
+    Checkpoint.save = save_then_crash
+    try:
+        with pytest.raises(Crash):
+            _run(sim_log, checkpoint=Checkpoint(path, every=8), **SMALL)
+    finally:
+        Checkpoint.save = original_save
+    assert Checkpoint(path).saved_static()["layout"]["slots"] > SMALL["pool_slots"]
+    resumed = _run(sim_log, checkpoint=Checkpoint(path, every=8, resume=True), **SMALL)
+    np.testing.assert_array_equal(resumed.trajectory, growing_run.trajectory)
+    np.testing.assert_array_equal(resumed.map_log_odds, growing_run.map_log_odds)
