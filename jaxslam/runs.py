@@ -48,9 +48,10 @@ def resolve_dataset(dataset: str | None, algorithm: str | None) -> tuple[Dataset
         kind = _kind_of(algorithm) if algorithm else "landmark"
         return lookup("sim-landmarks" if kind == "landmark" else "sim-laser"), None, kind
     candidate = Path(dataset).expanduser()
-    if candidate.suffix in {".clf", ".log", ".gz", ".carmen"} or candidate.exists():
+    if candidate.suffix in {".clf", ".log", ".gz", ".carmen", ".bag", ".mcap", ".db3"} or candidate.exists():
         if not candidate.exists():
-            raise DatasetNotFoundError(f"CARMEN log {str(candidate)!r} does not exist")
+            what = "ROS bag" if candidate.suffix in {".bag", ".mcap", ".db3"} else "CARMEN log"
+            raise DatasetNotFoundError(f"{what} {str(candidate)!r} does not exist")
         return None, candidate, "laser"
     try:
         info = lookup(dataset)
@@ -221,7 +222,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
-             checkpoint=None, keyframes=None):
+             checkpoint=None, keyframes=None, bag=None):
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.trajectory_io import write_tum
 
@@ -230,6 +231,10 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         from jaxslam.datasets import laser_sim
 
         log = laser_sim.simulate(seed=seed)
+    elif path is not None and _is_bag(path):
+        from jaxslam.datasets.rosbag import load_rosbag
+
+        log = load_rosbag(path, **(bag or {}))
     else:
         from jaxslam.datasets.carmen import load_dataset_log
 
@@ -250,6 +255,8 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}),
     }
+    if path is not None and _is_bag(path):
+        summary["bag"] = dict(log.params)  # the topics and frames used
     write_tum(out / "trajectory.tum", result.scan_times, result.trajectory,
               comment=f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}")
     relations = info.relations_path() if info is not None else None
@@ -273,6 +280,31 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     return summary
 
 
+# --------------------------------------------------------------------------- ROS bags
+
+BAG_OPTIONS = ("scan_topic", "odom_topic", "base_frame", "laser_offset")
+
+
+def _is_bag(path) -> bool:
+    from jaxslam.datasets.rosbag import is_rosbag
+
+    return is_rosbag(path)
+
+
+def _bag_options(bag: dict | None, path) -> dict:
+    """The ROS bag options that are set; an error if set for something that is not a bag."""
+    options = {k: v for k, v in (bag or {}).items() if v is not None}
+    unknown = set(options) - set(BAG_OPTIONS)
+    if unknown:
+        raise RunError(f"unknown ROS bag option(s) {sorted(unknown)}; use {', '.join(BAG_OPTIONS)}")
+    if options and (path is None or not _is_bag(path)):
+        raise RunError("--scan-topic/--odom-topic/--base-frame/--laser-mount apply to ROS bags only "
+                       "(a .bag file, a ROS 2 bag folder, .mcap or .db3)")
+    if "laser_offset" in options:
+        options["laser_offset"] = [float(v) for v in options["laser_offset"]]
+    return options
+
+
 # --------------------------------------------------------------------------- entry points
 
 
@@ -291,6 +323,7 @@ def run(
     checkpoint_every: int | None = None,
     resume: bool = False,
     keyframes: dict[str, float] | None = None,
+    bag: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -300,6 +333,9 @@ def run(
     ``out/run.json`` so that ``jaxslam run --resume OUT`` needs nothing else.
     ``keyframes`` (laser data only) sets any of ``linear``, ``angular``, ``temporal``
     of the keyframe rule (see :func:`jaxslam.grid.experiment.keyframe_rule`).
+    ``bag`` (ROS bags only) sets any of ``scan_topic``, ``odom_topic``, ``base_frame``,
+    ``laser_offset`` for :func:`jaxslam.datasets.rosbag.load_rosbag`; the trajectory's
+    stamps are the scans' header stamps (the bag's time base).
     """
     import jax
     import jax.numpy as jnp
@@ -322,6 +358,7 @@ def run(
     if keyframes and kind != "laser":
         raise RunError("keyframe thresholds (--linear-update/--angular-update/--temporal-update) apply to laser "
                        "data only; the landmark filters process every scan")
+    bag = _bag_options(bag, path)
     particles = particles or DEFAULT_PARTICLES[kind]
     if float64:
         jax.config.update("jax_enable_x64", True)
@@ -333,6 +370,8 @@ def run(
                 "max_steps": max_steps, "overrides": overrides, "float64": float64, "chunk": chunk}
     if keyframes:
         run_args["keyframes"] = keyframes
+    if bag:
+        run_args["bag"] = bag
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint
@@ -349,7 +388,8 @@ def run(
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
     if kind == "laser":
         args = (info, path) + args[1:]
-    summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}))
+    summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}),
+                     **({"bag": bag} if bag else {}))
     summary["resumed"] = bool(resume)
     summary["overrides"] = overrides
     summary["total_s"] = time.time() - started
@@ -385,6 +425,8 @@ def run_from_args(args) -> dict[str, Any] | None:
         max_steps=args.max_steps, overrides=_overrides_dict(args.overrides), progress=not args.no_progress,
         chunk=args.chunk, float64=args.float64, plots=not args.no_plots, checkpoint_every=args.checkpoint_every,
         keyframes={"linear": args.linear_update, "angular": args.angular_update, "temporal": args.temporal_update},
+        bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,
+             "laser_offset": args.laser_mount},
     )
 
 

@@ -4,6 +4,7 @@ bit for bit (arrays, then a grid SLAM run), and every kind of bad bag."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -52,8 +53,8 @@ def bags(intel, tmp_path_factory):
     root = tmp_path_factory.mktemp("bags")
     return {
         "ros1-odom": write_rosbag(intel, root / "intel.bag", version=1),
-        "ros2-sqlite3-tf": write_rosbag(intel, root / "intel_sqlite", version=2, odometry="tf"),
-        "ros2-mcap-odom": write_rosbag(intel, root / "intel_mcap", version=2, storage="mcap"),
+        "ros2-sqlite3-tf": write_rosbag(intel, root / "sqlite" / "intel", version=2, odometry="tf"),
+        "ros2-mcap-odom": write_rosbag(intel, root / "mcap" / "intel", version=2, storage="mcap"),
     }
 
 
@@ -74,18 +75,66 @@ def test_bag_arrays_equal_carmen(intel, bags, kind):
     assert log.params["odom_topic"] == ("/tf" if "tf" in kind else "/odom")
 
 
-def test_grid_slam_on_bags_is_bit_identical(intel, bags):
-    from jaxslam.grid.experiment import DATASET_BOUNDS, run_grid_slam
+GRID_OPTIONS = dict(particles=4, seed=3, max_keyframes=6, progress=False)
 
-    options = dict(particles=4, seed=3, max_keyframes=6, progress=False, bounds=DATASET_BOUNDS["intel"],
-                   config={"match_iterations": 2})
-    reference = run_grid_slam(intel, **options)
-    for kind in ("ros2-sqlite3-tf",):  # the ROS 1 bag runs through `jaxslam run` in tests/test_cli_rosbag.py
-        result = run_grid_slam(load_rosbag(bags[kind]), **options)
-        np.testing.assert_array_equal(result.keyframes, reference.keyframes)
-        np.testing.assert_array_equal(result.trajectory, reference.trajectory, err_msg=kind)
-        np.testing.assert_array_equal(result.map_log_odds, reference.map_log_odds, err_msg=kind)
+
+@pytest.fixture(scope="module")
+def reference(intel):
+    from jaxslam.grid.experiment import run_grid_slam
+
+    # Named "intel" (from its path), the run takes Intel's map box and keyframe rule;
+    # so do the runs on the bags below, whose files are named intel.*.
+    return run_grid_slam(intel, **GRID_OPTIONS)
+
+
+@pytest.mark.slow  # a third compile; the ROS 1 bag runs in the default suite (below) through the CLI
+def test_grid_slam_on_bag_is_bit_identical(reference, bags):
+    from jaxslam.grid.experiment import run_grid_slam
+
+    result = run_grid_slam(load_rosbag(bags["ros2-sqlite3-tf"]), **GRID_OPTIONS)
+    np.testing.assert_array_equal(result.keyframes, reference.keyframes)
+    np.testing.assert_array_equal(result.trajectory, reference.trajectory)
+    np.testing.assert_array_equal(result.map_log_odds, reference.map_log_odds)
     assert np.count_nonzero(reference.map_log_odds) > 1000  # the map is not empty
+
+
+def test_cli_run_on_bag_is_bit_identical(reference, bags, tmp_path, capsys):
+    from jaxslam import cli
+    from jaxslam.metrics.trajectory_io import read_tum
+
+    out = tmp_path / "run"
+    code = cli.main(["run", "--dataset", str(bags["ros1-odom"]), "--scan-topic", "/scan", "--odom-topic", "/odom",
+                     "--particles", "4", "--seed", "3", "--max-steps", "6", "--no-progress", "--no-plots",
+                     "--out", str(out)])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["bag"]["scan_topic"] == "/scan" and summary["keyframes"] == 6
+    arrays = np.load(out / "arrays.npz")
+    np.testing.assert_array_equal(arrays["trajectory"], reference.trajectory)
+    np.testing.assert_array_equal(arrays["log_odds"], reference.map_log_odds)
+    times, _ = read_tum(out / "trajectory.tum")
+    np.testing.assert_array_equal(times, reference.scan_times)  # the bag's header stamps, exactly
+    assert (out / "map.pgm").exists() and (out / "map.yaml").exists()
+
+
+def test_cli_inspect_and_bag_errors(bags, tmp_path, capsys):
+    from jaxslam import cli
+
+    assert cli.main(["datasets", "--inspect", str(bags["ros2-mcap-odom"])]) == 0
+    out = capsys.readouterr().out
+    assert "/scan" in out and "sensor_msgs/msg/LaserScan" in out and "300" in out and "/tf_static" in out
+
+    def fails(*argv):
+        with pytest.raises(SystemExit) as info:
+            cli.main(list(argv))
+        assert info.value.code == 2
+        return capsys.readouterr().err
+
+    run = ("run", "--no-progress", "--no-plots", "--out", str(tmp_path / "x"))
+    assert "topic /laser is not in the bag" in fails(*run, "--dataset", str(bags["ros1-odom"]), "--scan-topic",
+                                                    "/laser")
+    assert "apply to ROS bags only" in fails(*run, "--dataset", "sim-laser", "--scan-topic", "/scan")
+    assert "ROS bag" in fails(*run, "--dataset", str(tmp_path / "nothing.bag"))
 
 
 def test_inspect_lists_topics(bags):
