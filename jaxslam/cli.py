@@ -113,6 +113,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="steps per compiled chunk (progress-bar granularity)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    run.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
+                     help="log the run to a Rerun recording as it goes: map, particles, best path, scans, ESS "
+                          '(needs pip install "jaxslam[viz]")')
+    run.add_argument("--rerun-spawn", action="store_true", help="... and/or open the Rerun viewer live")
     bag = run.add_argument_group("ROS bags (--dataset path/to/bag: a ROS 1 .bag, a ROS 2 bag folder, .mcap or .db3)")
     bag.add_argument("--scan-topic", default=None, help="sensor_msgs/LaserScan topic; default: the only one")
     bag.add_argument("--odom-topic", default=None,

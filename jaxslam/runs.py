@@ -148,15 +148,19 @@ def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
 
 
 def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
-                 checkpoint=None):
+                 checkpoint=None, viz=None):
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.trajectory_io import write_tum
 
     sequence = load_landmark_sequence(info, max_steps, seed)
+    live = {} if viz is None else {"callback": viz.landmark_callback(np.asarray(sequence.times))}
     result = run_landmark_slam(
         sequence, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
-        progress=progress, chunk=chunk or 512, dtype=dtype, checkpoint=checkpoint,
+        progress=progress, chunk=min(chunk or 512, 50) if viz is not None else chunk or 512, dtype=dtype,
+        checkpoint=checkpoint, **live,
     )
+    if viz is not None:
+        viz.landmark_run(result, np.asarray(sequence.times))
     summary: dict[str, Any] = {
         "algorithm": algorithm, "dataset": info.name, "particles": particles, "seed": seed,
         "steps": result.steps, "wall_s": result.wall_s, "compile_s": result.compile_s,
@@ -222,7 +226,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
-             checkpoint=None, keyframes=None, bag=None):
+             checkpoint=None, keyframes=None, bag=None, viz=None):
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.trajectory_io import write_tum
 
@@ -239,12 +243,18 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         from jaxslam.datasets.carmen import load_dataset_log
 
         log = load_dataset_log(info.name if info is not None else str(path))
+    live = None
+    if viz is not None:
+        live = _grid_live_log(viz, log, max_steps, keyframes, chunk)
+        checkpoint, chunk = live, live.every
     result = grid_experiment.run_grid_slam(
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
         progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
         **({"checkpoint": checkpoint} if checkpoint is not None else {}),
         **{f"{k}_update": v for k, v in (keyframes or {}).items()},
     )
+    if live is not None and not np.array_equal(live.keyframes, result.keyframes):
+        raise RunError("the live view placed the keyframes differently from the run (a bug); its recording is wrong")
     summary: dict[str, Any] = {
         "algorithm": algorithm, "dataset": name, "particles": particles, "seed": seed,
         "scans": int(result.scan_times.shape[0]), "keyframes": int(result.keyframes.shape[0]),
@@ -278,6 +288,34 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         title=f"{algorithm}, {name}, {particles} particles",
     )
     return summary
+
+
+# --------------------------------------------------------------------------- live view (Rerun)
+
+
+def _open_viz(rerun_path, rerun_spawn, name):
+    """A :class:`jaxslam.viz.rerun_log.RerunLog`, or a RunError naming the install command."""
+    if rerun_path is None and not rerun_spawn:
+        return None
+    try:
+        from jaxslam.viz.rerun_log import RerunLog
+
+        return RerunLog(rerun_path, spawn=rerun_spawn, name=f"jaxslam {name}")
+    except ImportError as err:
+        raise RunError(f"--rerun/--rerun-spawn: {err}") from None
+
+
+def _grid_live_log(viz, log, max_steps, keyframes, chunk):
+    """Follow a grid run: the same keyframes and grid as run_grid_slam chooses."""
+    from jaxslam.datasets.carmen import select_keyframes
+    from jaxslam.grid import experiment as grid_experiment
+    from jaxslam.viz.rerun_log import GridLiveLog
+
+    name = grid_experiment._dataset_name(log)
+    rule = grid_experiment.keyframe_rule(name, *((keyframes or {}).get(k) for k in ("linear", "angular", "temporal")))
+    chosen = select_keyframes(log.odom_poses, *rule, times=log.scan_times)[:max_steps]
+    spec = grid_experiment.grid_spec_for(log, chosen, name, 0.05, 20.0)
+    return GridLiveLog(viz, log, chosen, spec.resolution, (spec.origin_x, spec.origin_y), every=min(chunk or 25, 25))
 
 
 # --------------------------------------------------------------------------- ROS bags
@@ -324,6 +362,8 @@ def run(
     resume: bool = False,
     keyframes: dict[str, float] | None = None,
     bag: dict[str, Any] | None = None,
+    rerun: str | Path | None = None,
+    rerun_spawn: bool = False,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -336,6 +376,8 @@ def run(
     ``bag`` (ROS bags only) sets any of ``scan_topic``, ``odom_topic``, ``base_frame``,
     ``laser_offset`` for :func:`jaxslam.datasets.rosbag.load_rosbag`; the trajectory's
     stamps are the scans' header stamps (the bag's time base).
+    ``rerun`` (a ``.rrd`` path) and/or ``rerun_spawn`` log the run to Rerun as it goes
+    (:mod:`jaxslam.viz.rerun_log`; needs ``pip install "jaxslam[viz]"``).
     """
     import jax
     import jax.numpy as jnp
@@ -359,6 +401,8 @@ def run(
         raise RunError("keyframe thresholds (--linear-update/--angular-update/--temporal-update) apply to laser "
                        "data only; the landmark filters process every scan")
     bag = _bag_options(bag, path)
+    if (rerun is not None or rerun_spawn) and (checkpoint_every is not None or resume):
+        raise RunError("--rerun/--rerun-spawn cannot be combined with --checkpoint-every/--resume")
     particles = particles or DEFAULT_PARTICLES[kind]
     if float64:
         jax.config.update("jax_enable_x64", True)
@@ -388,8 +432,15 @@ def run(
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
     if kind == "laser":
         args = (info, path) + args[1:]
-    summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}),
-                     **({"bag": bag} if bag else {}))
+    viz = _open_viz(rerun, rerun_spawn, dataset_name)
+    try:
+        summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}),
+                         **({"bag": bag} if bag else {}), **({"viz": viz} if viz is not None else {}))
+    finally:
+        if viz is not None:
+            viz.close()
+    if rerun is not None:
+        summary["rerun"] = str(rerun)
     summary["resumed"] = bool(resume)
     summary["overrides"] = overrides
     summary["total_s"] = time.time() - started
@@ -427,6 +478,7 @@ def run_from_args(args) -> dict[str, Any] | None:
         keyframes={"linear": args.linear_update, "angular": args.angular_update, "temporal": args.temporal_update},
         bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,
              "laser_offset": args.laser_mount},
+        rerun=args.rerun, rerun_spawn=args.rerun_spawn,
     )
 
 

@@ -105,7 +105,7 @@ def test_cli_run_on_bag_is_bit_identical(reference, bags, tmp_path, capsys):
     out = tmp_path / "run"
     code = cli.main(["run", "--dataset", str(bags["ros1-odom"]), "--scan-topic", "/scan", "--odom-topic", "/odom",
                      "--particles", "4", "--seed", "3", "--max-steps", "6", "--no-progress", "--no-plots",
-                     "--out", str(out)])
+                     "--out", str(out), "--rerun", str(tmp_path / "run.rrd")])
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["bag"]["scan_topic"] == "/scan" and summary["keyframes"] == 6
@@ -115,6 +115,29 @@ def test_cli_run_on_bag_is_bit_identical(reference, bags, tmp_path, capsys):
     times, _ = read_tum(out / "trajectory.tum")
     np.testing.assert_array_equal(times, reference.scan_times)  # the bag's header stamps, exactly
     assert (out / "map.pgm").exists() and (out / "map.yaml").exists()
+    _check_recording(tmp_path / "run.rrd", reference)
+
+
+def _check_recording(path, reference):
+    """The live view's recording, read back with Rerun's reader, holds the run."""
+    from jaxslam.viz.rerun_log import occupancy_percent
+    from tests.viz.test_rerun_log import decode_map, read_rrd
+
+    rows = read_rrd(path)
+    keyframe_scans = reference.keyframes[1:].tolist()
+    assert [r["scan"] for r in rows["/world/particles"]] == keyframe_scans
+    assert all(len(r["Points3D:positions"]) == 4 for r in rows["/world/particles"])
+    assert [r["scan"] for r in rows["/health/ess"]] == keyframe_scans
+    image, cell, origin = decode_map(rows["/world/map"][-1])
+    assert rows["/world/map"][-1]["scan"] == keyframe_scans[-1]
+    np.testing.assert_array_equal(image, occupancy_percent(reference.map_log_odds)[::-1])
+    assert cell == pytest.approx(reference.resolution) and origin == pytest.approx(reference.origin)
+    path_xy = np.array(rows["/world/trajectory"][-1]["LineStrips3D:strips"][0])[:, :2]
+    np.testing.assert_allclose(path_xy, reference.keyframe_poses[:, :2], atol=1e-5)
+    # The last scan, placed at the best pose, falls on cells the map calls occupied.
+    hits = np.array(rows["/world/scan"][-1]["Points3D:positions"])[:, :2]
+    cells = np.floor((hits - np.array(origin)) / cell).astype(int)
+    assert np.mean(image[cells[:, 1], cells[:, 0]] > 50) > 0.8
 
 
 def test_cli_inspect_and_bag_errors(bags, tmp_path, capsys):
