@@ -38,7 +38,7 @@ NOISE_KEYS = {
 
 
 def noise_overrides(algorithm: str, scale: float) -> dict:
-    from jaxslam.grid.common import default_params
+    from jaxslam.grid.types import default_params
 
     base = default_params(np.zeros(2))._asdict()
     return {k: float(base[k]) * scale for k in NOISE_KEYS[algorithm]}

@@ -46,12 +46,16 @@ class Checkpoint:
         every: save after the chunk in which another ``every`` steps were completed.
         fingerprint: JSON-able description of the run; a resume must match it.
         resume: load ``path`` (if it exists) before running.
+        static: JSON-able static settings that shape the state and may change during
+            a run (a grown map layout); saved with every checkpoint and read back by
+            :meth:`saved_static` before the state is restored.
     """
 
     path: Path
     every: int | None = None
     fingerprint: dict[str, Any] = field(default_factory=dict)
     resume: bool = False
+    static: dict[str, Any] = field(default_factory=dict)
     _last_saved: int = 0
 
     def __post_init__(self):
@@ -73,6 +77,7 @@ class Checkpoint:
             "carry_treedef": str(treedef),
             "n_carry": len(leaves),
             "n_out": len(output_leaves),
+            "static": json.loads(json.dumps(self.static, sort_keys=True, default=str)),
         }
         arrays["meta_json"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -84,16 +89,22 @@ class Checkpoint:
         os.replace(tmp, self.path)
         self._last_saved = done
 
-    def load(self, carry_template) -> tuple[Any, int, list[np.ndarray]]:
-        """``(carry, done, output_leaves)`` from :attr:`path`, validated against the run."""
+    def saved_static(self) -> dict[str, Any]:
+        """The ``static`` settings stored in :attr:`path` (empty if none)."""
+        return self._meta(self._read()).get("static", {})
+
+    def _read(self) -> dict[str, np.ndarray]:
         where = str(self.path)
         if not self.path.exists():
             raise CheckpointError(f"{where}: no checkpoint to resume from")
         try:
             with np.load(self.path, allow_pickle=False) as data:
-                files = {name: data[name] for name in data.files}
+                return {name: data[name] for name in data.files}
         except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
             raise CheckpointError(f"{where}: corrupt checkpoint ({err})") from None
+
+    def _meta(self, files: dict[str, np.ndarray]) -> dict[str, Any]:
+        where = str(self.path)
         if "meta_json" not in files:
             raise CheckpointError(f"{where}: not a jaxslam checkpoint (no metadata)")
         try:
@@ -102,6 +113,13 @@ class Checkpoint:
             raise CheckpointError(f"{where}: corrupt checkpoint metadata ({err})") from None
         if meta.get("format") != FORMAT_VERSION:
             raise CheckpointError(f"{where}: checkpoint format {meta.get('format')} is not {FORMAT_VERSION}")
+        return meta
+
+    def load(self, carry_template) -> tuple[Any, int, list[np.ndarray]]:
+        """``(carry, done, output_leaves)`` from :attr:`path`, validated against the run."""
+        where = str(self.path)
+        files = self._read()
+        meta = self._meta(files)
         mine = json.loads(json.dumps(self.fingerprint, sort_keys=True, default=str))
         theirs = meta.get("fingerprint", {})
         differing = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))

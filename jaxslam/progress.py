@@ -119,6 +119,8 @@ def run_scan_chunked(
     callback: Callable[[Any, int], None] | None = None,
     runner=None,
     checkpoint=None,
+    stop: Callable[[Any], bool] | None = None,
+    prior: Any = None,
 ):
     """Scan ``step_fn`` over ``xs`` (leading axis = time) in jitted chunks.
 
@@ -140,12 +142,19 @@ def run_scan_chunked(
             (carry, outputs so far, position) replaces ``carry`` and ``start``; with
             ``every`` the state is saved atomically at chunk ends. A resumed run's
             ``ys`` cover all steps from 0 and equal those of an uninterrupted run.
+        stop: ``stop(carry) -> bool`` checked after every chunk; when true the run
+            ends there (no checkpoint is written for that chunk) and ``ys`` cover the
+            steps run so far. The caller finds where to continue from.
+        prior: outputs (a ``ys`` pytree) of steps ``0..start-1`` from an earlier call,
+            prepended to the returned ``ys`` and to the outputs a checkpoint saves.
 
     Returns:
         ``(carry, ys, timing)`` with ``ys`` stacked over the steps ``start..T-1``
         (from 0 when resuming from a checkpoint).
     """
     prior_leaves: list | None = None
+    if prior is not None:
+        prior_leaves = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(prior)]
     if checkpoint is not None and checkpoint.resume:
         carry, start, prior_leaves = checkpoint.load(carry)
         log(f"{desc}: resumed from {checkpoint.path} at step {start}", progress)
@@ -199,6 +208,8 @@ def run_scan_chunked(
             done += n_valid
             outputs.append(ys)
             bar.update(n_valid)
+            if stop is not None and stop(carry):
+                break
             if checkpoint is not None and (checkpoint.due(done) or (checkpoint.every and done == total)):
                 leaves = jax.tree_util.tree_leaves(_stack(outputs, done - start))
                 if prior_leaves is not None:
@@ -209,12 +220,12 @@ def run_scan_chunked(
     finally:
         bar.close()
     wall_s = time.perf_counter() - t0
-    ys = _stack(outputs, remaining)
+    ys = _stack(outputs, done - start)
     if prior_leaves is not None:
         treedef = jax.tree_util.tree_structure(ys)
         leaves = [jnp.concatenate([jnp.asarray(p), c], 0) for p, c in zip(prior_leaves, jax.tree_util.tree_leaves(ys))]
         ys = jax.tree_util.tree_unflatten(treedef, leaves)
-    return carry, ys, Timing(compile_s, wall_s, remaining)
+    return carry, ys, Timing(compile_s, wall_s, done - start)
 
 
 def _stack(outputs, length: int):

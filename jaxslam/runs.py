@@ -121,7 +121,7 @@ def _param_fields(algorithm: str) -> dict[str, Any]:
 
         defaults = Params()
     else:
-        from jaxslam.grid.common import default_params
+        from jaxslam.grid.types import default_params
 
         defaults = default_params(np.zeros(1, np.float32))
     values = {}

@@ -1,33 +1,34 @@
-"""Occupancy-grid SLAM: dense per-particle ``int8`` grids, batched ray updates, scan
+"""Occupancy-grid SLAM: paged per-particle ``int8`` maps, batched ray updates, scan
 matching, a GMapping-style filter and SRUPF-GM (Zandara & Nicholson 2009).
 
 Modules:
 
-* :mod:`~jaxslam.grid.map` — grid geometry (:class:`GridSpec`) and cell type.
-* :mod:`~jaxslam.grid.update` — ray updates of all particles' grids at once.
+* :mod:`~jaxslam.grid.map` — dense grid geometry (:class:`GridSpec`), cell type, readers.
+* :mod:`~jaxslam.grid.paged` — paged maps: tile pool, page tables, copy on write, growth.
+* :mod:`~jaxslam.grid.update` — ray updates of all particles' maps at once.
 * :mod:`~jaxslam.grid.score` — map evidence at beam end points, scan likelihood.
 * :mod:`~jaxslam.grid.matching` — hill climbing (GMapping), the covariance-ellipse
   search (SRUPF-GM) and an optax gradient refinement.
-* :mod:`~jaxslam.grid.common` — config, params, state, shared filter steps.
+* :mod:`~jaxslam.grid.types` — config, params, state, info, inputs.
+* :mod:`~jaxslam.grid.filter` — ``init`` and the shared tail of both filters' steps.
+* :mod:`~jaxslam.grid.driver` — step keys, cached jitted chunk runners, map growth.
 * :mod:`~jaxslam.grid.gmapping`, :mod:`~jaxslam.grid.srupf` — the filters
   (``init``/``step``/``run``).
 * :mod:`~jaxslam.grid.export` — PGM + YAML (ROS map_server) and PNG.
 * :mod:`~jaxslam.grid.experiment` — :func:`run_grid_slam` on a CARMEN log.
 """
 
-from jaxslam.grid import common, export, gmapping, matching, score, srupf, update
+from jaxslam.grid import driver, export, filter, gmapping, matching, paged, score, srupf, types, update
 from jaxslam.grid import map as map
-from jaxslam.grid.common import (
+from jaxslam.grid.filter import best_particle, init
+from jaxslam.grid.types import (
     GridSlamConfig,
     GridSlamInfo,
     GridSlamParams,
     GridSlamState,
     Odometry,
     Scan,
-    best_particle,
-    best_trajectory,
     default_params,
-    init,
 )
 from jaxslam.grid.export import save_map
 from jaxslam.grid.map import GridSpec
@@ -41,8 +42,10 @@ __all__ = [
     "Odometry",
     "Scan",
     "best_particle",
-    "best_trajectory",
-    "common",
+    "driver",
+    "filter",
+    "paged",
+    "types",
     "default_params",
     "export",
     "gmapping",

@@ -1,9 +1,11 @@
 """Run a grid SLAM filter on a CARMEN log (or a simulated one) from end to end.
 
 :func:`run_grid_slam` selects keyframes from the odometry (GMapping's linear and
-angular update thresholds), sizes the grid, runs the chosen filter in jitted chunks
-with a progress bar (:func:`jaxslam.progress.run_scan_chunked`; compile time is
-reported apart), rebuilds the best particle's path (largest accumulated
+angular update thresholds), lays out the paged maps (a page table over the odometry
+box plus a margin; it grows if the corrected path leaves it, and so does the tile
+pool: :mod:`jaxslam.grid.paged`), runs the chosen filter in jitted chunks with a
+progress bar (:func:`jaxslam.grid.driver.run_filter`; compile time is reported
+apart), rebuilds the best particle's path (largest accumulated
 log-likelihood, as GMapping) and gives a pose for every scan of the log: the last
 corrected keyframe pose composed with the odometry since
 (:func:`jaxslam.metrics.trajectory_io.interpolate_poses`). The map frame is the
@@ -22,32 +24,14 @@ import numpy as np
 
 from jaxslam.datasets.carmen import CarmenLog, load_dataset_log, select_keyframes
 from jaxslam.grid import gmapping, srupf
-from jaxslam.grid.common import (
-    GridSlamConfig,
-    GridSlamParams,
-    Odometry,
-    Scan,
-    best_particle,
-    best_trajectory,
-    default_params,
-    init,
-)
-from jaxslam.grid.map import GridSpec
+from jaxslam.grid.driver import RunStats, run_filter
+from jaxslam.grid.filter import best_particle
+from jaxslam.grid.paged import PagedLayout, pool_stats, stitch, window_side
+from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, Scan, default_params
 from jaxslam.grid.update import required_points
 from jaxslam.metrics.trajectory_io import interpolate_poses, se2_between
-from jaxslam.progress import run_scan_chunked
 
 ALGORITHMS = ("srupf-gm", "srupf-gm-npc", "gmapping")
-
-# Map boxes (xmin, ymin, xmax, ymax) in the odometry frame of each raw log, from the
-# extent of our own maps with a margin of several metres (FR079: the map of a
-# 30-particle run spans x -23.2 .. 21.5, y 0.8 .. 16.3); other logs fall back to the
-# odometry bounding box plus a margin.
-DATASET_BOUNDS = {
-    "intel": (-18.0, -30.0, 24.0, 12.0),
-    "fr079": (-27.0, -3.0, 25.0, 20.0),
-    "mit-csail": (520.0, -55.0, 625.0, 25.0),
-}
 
 # Per-dataset parameter defaults (on top of default_params).
 DATASET_PARAMS: dict[str, dict[str, Any]] = {}
@@ -89,7 +73,10 @@ class GridSlamResult:
             ``best_score``, ``dropped_points``, ``pd_ok_fraction``).
         wall_s: run time without compilation; ``compile_s``: compilation.
         resamplings: number of resampling steps.
-        state: the final filter state (particles, grids, weights) as host arrays.
+        state: the final filter state (particles, maps, weights) as host arrays.
+        map_stats: pool and tile counts of the final maps (:func:`jaxslam.grid.paged.pool_stats`).
+        growths: each growth of the maps (step, what grew, new sizes); each cost a
+            recompilation.
     """
 
     algorithm: str
@@ -111,6 +98,8 @@ class GridSlamResult:
     params: dict[str, Any]
     state: Any = None
     keyframe_rule: tuple[float, float, float] = DEFAULT_KEYFRAMES
+    map_stats: dict[str, Any] = dataclasses.field(default_factory=dict)
+    growths: list[dict[str, Any]] = dataclasses.field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready scalars."""
@@ -126,12 +115,15 @@ class GridSlamResult:
             "compile_s": self.compile_s,
             "resamplings": self.resamplings,
             "s_per_keyframe": self.wall_s / max(int(self.keyframes.shape[0]) - 1, 1),
-            "grid_shape": [self.config.spec.height, self.config.spec.width],
+            "map_shape": list(self.map_log_odds.shape),
             "resolution": self.resolution,
             "match_beams": len(self.config.match_beams),
             "match_iterations": self.config.match_iterations,
             "max_points": self.config.max_points,
             "dropped_points_max": int(np.max(self.info["dropped_points"])) if self.info["dropped_points"].size else 0,
+            "maps": dict(self.map_stats),
+            "map_growths": len(self.growths),
+            "map_growth_steps": [g["step"] for g in self.growths],
         }
 
 
@@ -142,19 +134,51 @@ def _dataset_name(log_or_name) -> str:
     return os.path.basename(str(path)).split(".")[0] if path is not None else "log"
 
 
-def grid_spec_for(
-    log: CarmenLog, keyframes: np.ndarray, name: str, resolution: float, margin: float, bounds=None
-) -> GridSpec:
-    """The grid for a run: ``bounds``, else the dataset's box, else odometry box + margin."""
-    if bounds is None and name in DATASET_BOUNDS and resolution > 0:
-        bounds = DATASET_BOUNDS[name]
+def map_layout(
+    log: CarmenLog, keyframes: np.ndarray, resolution: float, margin: float, particles: int, window_range: float,
+    bounds=None,
+) -> PagedLayout:
+    """The starting layout of a run's paged maps.
+
+    The page table covers ``bounds`` if given, else the odometry box of the keyframes
+    plus ``margin`` metres (it grows when the corrected path leaves it; a page-table
+    entry is 4 bytes per 3.2 m tile and particle, so a generous box is cheap). The pool
+    starts with room for about one map of the table plus a window of fresh tiles per
+    particle, and doubles when it runs out.
+    """
     if bounds is not None:
-        return GridSpec.from_bounds(*bounds, resolution=resolution)
-    return GridSpec.around_path(log.odom_poses[keyframes, :2], margin, resolution)
+        xmin, ymin, xmax, ymax = bounds
+    else:
+        lo = log.odom_poses[keyframes, :2].min(0) - margin
+        hi = log.odom_poses[keyframes, :2].max(0) + margin
+        xmin, ymin, xmax, ymax = lo[0], lo[1], hi[0], hi[1]
+    layout = PagedLayout.covering(float(xmin), float(ymin), float(xmax), float(ymax), resolution)
+    side = window_side(window_range, layout)
+    slots = 1 + min(layout.table_size, 4096) + particles * side * side // 4
+    return dataclasses.replace(layout, slots=int(2 ** np.ceil(np.log2(slots))))
+
+
+def best_trajectory(info_poses, info_ancestors, final_index: int) -> np.ndarray:
+    """Host: corrected poses ``(T, 3)`` of the lineage of final particle ``final_index``.
+
+    Args:
+        info_poses: ``(T, P, 3)`` ``GridSlamInfo.poses`` stacked over steps.
+        info_ancestors: ``(T, P)`` ``GridSlamInfo.ancestors``.
+        final_index: index of a particle in the final state.
+    """
+    poses = np.asarray(info_poses)
+    ancestors = np.asarray(info_ancestors)
+    steps = poses.shape[0]
+    out = np.empty((steps, 3), poses.dtype)
+    idx = int(final_index)
+    for t in range(steps - 1, -1, -1):
+        idx = int(ancestors[t, idx])
+        out[t] = poses[t, idx]
+    return out
 
 
 def make_config(
-    algorithm: str, particles: int, spec: GridSpec, num_beams: int, max_points: int, **overrides
+    algorithm: str, particles: int, layout: PagedLayout, num_beams: int, max_points: int, **overrides
 ) -> GridSlamConfig:
     """Static configuration for an algorithm name."""
     if algorithm not in ALGORITHMS:
@@ -165,7 +189,7 @@ def make_config(
         "sampling": "posterior" if algorithm == "srupf-gm-npc" else "prior",
     }
     base.update(overrides)
-    return GridSlamConfig(particles, spec, num_beams, max_points, **base)
+    return GridSlamConfig(particles, layout, num_beams, max_points, **base)
 
 
 def run_grid_slam(
@@ -197,20 +221,19 @@ def run_grid_slam(
             ``"gmapping"``.
         particles: number of particles.
         seed: PRNG seed.
-        params: overrides of :func:`jaxslam.grid.common.default_params`.
+        params: overrides of :func:`jaxslam.grid.types.default_params`.
         config: overrides of the static :class:`GridSlamConfig` fields
             (``match_stride``, ``match_iterations``, ``refine_steps``, ``matcher``,
-            ``resampler``, ``max_points``).
+            ``resampler``, ``max_points``, ``window_range``).
         progress: show the progress bar.
         linear_update, angular_update, temporal_update: keyframe thresholds (m, rad,
             s; GMapping's linearUpdate, angularUpdate, temporalUpdate). ``None``: the
             dataset's rule (:data:`DATASET_KEYFRAMES`), else GMapping's defaults
             1.0 m, 0.5 rad, no temporal update.
         resolution: cell size (m).
-        margin: margin around the odometry box when the dataset has no known box
-            (raw odometry can drift far from the corrected path: FR079's needs about
-            15 m).
-        bounds: explicit map box ``(xmin, ymin, xmax, ymax)``.
+        margin: margin (m) around the odometry box for the starting page table
+            (:func:`map_layout`; the maps grow beyond it when needed).
+        bounds: a starting map box ``(xmin, ymin, xmax, ymax)`` instead.
         max_keyframes: stop after this many keyframes (short runs, CI).
         dtype: float dtype of poses and params.
         chunk: keyframes per compiled chunk.
@@ -238,51 +261,32 @@ def run_grid_slam(
     valid = np.asarray(log.valid[keyframes]) & np.isfinite(ranges)
     ranges = np.where(valid, ranges, 0.0)
     cfg_over = dict(config or {})
-    spec = grid_spec_for(log, keyframes, name, resolution, margin, bounds)
+    window_range = float(cfg_over.pop("window_range", max(usable, 1.0)))
+    layout = map_layout(log, keyframes, resolution, margin, particles, window_range, bounds)
     max_points = cfg_over.pop("max_points", None)
     if max_points is None:
         need = required_points(np.minimum(ranges, usable), valid, resolution)
         max_points = int(np.ceil(need / 1024.0) * 1024)
-    cfg = make_config(algorithm, particles, spec, log.num_beams, max_points, **cfg_over)
+    cfg = make_config(algorithm, particles, layout, log.num_beams, max_points, window_range=window_range, **cfg_over)
     module = gmapping if algorithm == "gmapping" else srupf
 
     offsets = np.asarray(log.angle_offsets[keyframes], np.float64)
     first = Scan(jnp.asarray(ranges[0], dtype), jnp.asarray(valid[0]), jnp.asarray(offsets[0], dtype))
-    state = init(prm, cfg, first, jnp.asarray(odom[0], dtype))
-    keys = jax.random.split(jax.random.PRNGKey(seed), keyframes.shape[0] - 1)
     substeps = np.diff(keyframes).astype(np.float64)
-    xs = (
-        keys,
-        Odometry(jnp.asarray(controls, dtype), jnp.asarray(substeps, dtype)),
-        Scan(jnp.asarray(ranges[1:], dtype), jnp.asarray(valid[1:]), jnp.asarray(offsets[1:], dtype)),
-    )
-
-    def step_fn(carry, x):
-        st, pr = carry
-        key, control, observation = x
-        st, info = module.step(key, st, control, observation, pr, cfg)
-        summary = {
-            "poses": info.poses,
-            "ancestors": info.ancestors,
-            "ess": info.ess,
-            "resampled": info.resampled,
-            "mean_score": jnp.mean(info.scores),
-            "best_score": jnp.max(info.scores),
-            "dropped_points": info.dropped_points,
-            "pd_ok_fraction": jnp.mean(info.pd_ok.astype(jnp.float32)),
-        }
-        return (st, pr), summary
-
-    (state, prm), ys, timing = run_scan_chunked(
-        step_fn, (state, prm), xs, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress,
-        checkpoint=checkpoint,
+    controls = Odometry(jnp.asarray(controls, dtype), jnp.asarray(substeps, dtype))
+    observations = Scan(jnp.asarray(ranges[1:], dtype), jnp.asarray(valid[1:]), jnp.asarray(offsets[1:], dtype))
+    unit = float(prm.log_odds_unit)
+    params_record = {k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"}
+    state, ys, cfg, stats = run_filter(
+        module.step, jax.random.PRNGKey(seed), prm, cfg, first, jnp.asarray(odom[0], dtype), controls, observations,
+        chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress, checkpoint=checkpoint,
     )
     best = int(best_particle(state))
     kf_poses = best_trajectory(ys["poses"], ys["ancestors"], best)
     kf_poses = np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0)
     trajectory = interpolate_poses(keyframes, kf_poses, log.odom_poses)
-    unit = float(prm.log_odds_unit)
-    grid = np.asarray(state.grids[best]).astype(np.float32) * unit
+    cells, origin = stitch(state.maps.pool, state.maps.tables[best], cfg.layout)
+    grid = cells.astype(np.float32) * unit
     info = {k: np.asarray(v) for k, v in ys.items() if k not in ("poses", "ancestors")}
     return GridSlamResult(
         algorithm=algorithm,
@@ -294,17 +298,29 @@ def run_grid_slam(
         keyframes=keyframes,
         keyframe_poses=kf_poses,
         map_log_odds=grid,
-        resolution=spec.resolution,
-        origin=(spec.origin_x, spec.origin_y),
+        resolution=cfg.layout.resolution,
+        origin=origin,
         info=info,
-        wall_s=timing.wall_s,
-        compile_s=timing.compile_s,
+        wall_s=stats.wall_s,
+        compile_s=stats.compile_s,
         resamplings=int(np.sum(info["resampled"])),
         config=cfg,
-        params={k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"},
+        params=params_record,
         state=jax.tree_util.tree_map(np.asarray, state),
         keyframe_rule=rule,
+        map_stats=pool_stats(state.maps, cfg.layout),
+        growths=stats.growths,
     )
 
 
-__all__ = ["ALGORITHMS", "DATASET_BOUNDS", "DATASET_KEYFRAMES", "DEFAULT_KEYFRAMES", "GridSlamResult", "grid_spec_for", "keyframe_rule", "make_config", "run_grid_slam"]
+__all__ = [
+    "ALGORITHMS",
+    "DATASET_KEYFRAMES",
+    "DEFAULT_KEYFRAMES",
+    "GridSlamResult",
+    "best_trajectory",
+    "keyframe_rule",
+    "make_config",
+    "map_layout",
+    "run_grid_slam",
+]

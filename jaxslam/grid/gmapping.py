@@ -17,13 +17,20 @@ Per particle :math:`i` and keyframe :math:`t` (``GridSlamProcessor::processScan`
 
 from __future__ import annotations
 
-from functools import partial
-
 import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxslam.grid.common import (
+from jaxslam.grid.driver import scan_runner
+from jaxslam.grid.filter import (
+    finish_step,
+    guard,
+    init,
+    match_geometry,
+    particle_reader,
+    score_model,
+)
+from jaxslam.grid.types import (
     GridSlamConfig,
     GridSlamInfo,
     GridSlamParams,
@@ -31,19 +38,15 @@ from jaxslam.grid.common import (
     Odometry,
     Scan,
     as_odometry,
-    finish_step,
-    init,
-    match_geometry,
-    scan_keyframes,
-    score_model,
 )
+from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
 from jaxslam.models.odometry import sample_gmapping
 
 
 def correct_pose(
-    grid: Array,
+    read: CellReader,
     pose: Array,
     pose_sqrt_cov: Array,
     local_points: Array,
@@ -60,16 +63,16 @@ def correct_pose(
     model = score_model(params)
     kernel = config.score_kernel
     score_fn = make_score_fn(
-        grid, local_points, mask, params.laser_offset, config.spec, model, kernel, config.free_check
+        read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     matcher = get_matcher(config.matcher)
     best, _ = matcher(score_fn, pose, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
     count = jnp.maximum(jnp.sum(mask), 1).astype(pose.dtype)
     log_lik_best, score_best = scan_log_likelihood(
-        grid, best, local_points, mask, params.laser_offset, config.spec, model, kernel, config.free_check
+        read, best, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     log_lik_init, score_init = scan_log_likelihood(
-        grid, pose, local_points, mask, params.laser_offset, config.spec, model, kernel, config.free_check
+        read, pose, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     accept = score_best / count > params.min_score
     return (
@@ -79,7 +82,7 @@ def correct_pose(
     )
 
 
-def step(
+def _step(
     key: Array,
     state: GridSlamState,
     control: Odometry | Array,
@@ -107,13 +110,14 @@ def step(
     keys = jax.random.split(key_motion, n)
     local_points, mask = match_geometry(observation, params, config)
 
-    def particle(k, grid, pose, sqrt_cov):
+    def particle(k, table, pose, sqrt_cov):
+        read = particle_reader(state, table, config)
         proposal = sample_gmapping(
             k, pose, increment, scale * params.srr, scale * params.srt, scale * params.str_, scale * params.stt
         )
-        return correct_pose(grid, proposal, sqrt_cov, local_points, mask, params, config)
+        return correct_pose(read, proposal, sqrt_cov, local_points, mask, params, config)
 
-    poses, scores, log_liks = jax.vmap(particle)(keys, state.grids, state.poses, state.pose_sqrt_covs)
+    poses, scores, log_liks = jax.vmap(particle)(keys, state.maps.tables, state.poses, state.pose_sqrt_covs)
     return finish_step(
         key_resample,
         state,
@@ -129,17 +133,8 @@ def step(
     )
 
 
-@partial(jax.jit, static_argnames=("config",), donate_argnames=("state",))
-def run(
-    key: Array,
-    state: GridSlamState,
-    controls: Odometry | Array,
-    observations: Scan,
-    params: GridSlamParams,
-    config: GridSlamConfig,
-) -> tuple[GridSlamState, GridSlamInfo]:
-    """Scan :func:`step` over keyframes: ``controls`` stacked over ``T``, ``observations (T, B)``."""
-    return scan_keyframes(step, key, state, controls, observations, params, config)
+step = guard(_step)
+run = scan_runner(step)
 
 
 __all__ = ["correct_pose", "init", "run", "step"]

@@ -20,6 +20,7 @@ Geometry (:class:`GridSpec`, static): cell ``(row, col)`` covers world
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import jax.numpy as jnp
@@ -27,6 +28,12 @@ import numpy as np
 from jax import Array
 
 CELL_DTYPE = jnp.int8
+
+CellReader = Callable[[Array, Array], Array]
+"""``(cols, rows) -> cells``: the int8 cells of one map at integer coordinates of any
+shape, 0 (unknown) outside it. The score functions read maps only through one of
+these, so a dense grid (:func:`dense_reader`) and a paged map
+(:func:`jaxslam.grid.paged.reader`) score alike."""
 
 
 @dataclass(frozen=True)
@@ -85,6 +92,16 @@ def init_grids(num_particles: int, spec: GridSpec) -> Array:
     return jnp.zeros((num_particles, spec.height, spec.width), CELL_DTYPE)
 
 
+def dense_reader(grid: Array, spec: GridSpec) -> CellReader:
+    """The :data:`CellReader` of one dense grid ``(H, W)``."""
+    flat = grid.reshape(-1)
+
+    def read(cols: Array, rows: Array) -> Array:
+        return flat.at[flat_index(cols, rows, spec)].get(mode="fill", fill_value=0)
+
+    return read
+
+
 def world_to_grid(points: Array, spec: GridSpec) -> Array:
     """Continuous grid coordinates ``(..., 2)`` = ``(col, row)`` of world points."""
     origin = jnp.asarray([spec.origin_x, spec.origin_y], points.dtype)
@@ -116,6 +133,8 @@ def probability(grid: Array, unit) -> Array:
 
 __all__ = [
     "CELL_DTYPE",
+    "CellReader",
+    "dense_reader",
     "GridSpec",
     "cell_of",
     "flat_index",

@@ -24,6 +24,10 @@ subset).
 ``kernel="gaussian3"`` replaces the bilinear evidence by GMapping's neighbourhood
 form, the best :math:`o(c) \exp(-d^2/\sigma^2)` over the 3 x 3 cells around the end
 point (:func:`gaussian_window_occupancy`): a wider basin for 9 cells per beam.
+
+Maps are read through a :data:`~jaxslam.grid.map.CellReader` (a dense grid or a
+particle's paged map) in a frame with ``resolution``, ``origin_x``, ``origin_y``;
+cells outside the map read as unknown.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.core import se2
-from jaxslam.grid.map import GridSpec
+from jaxslam.grid.map import CellReader
 
 
 def beam_points(ranges: Array, angles: Array) -> Array:
@@ -43,34 +47,25 @@ def beam_points(ranges: Array, angles: Array) -> Array:
     return ranges[:, None] * jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1)
 
 
-def bilinear_occupancy(grid: Array, points: Array, spec: GridSpec, saturation) -> Array:
+def bilinear_occupancy(read: CellReader, points: Array, frame, saturation) -> Array:
     """Occupancy in ``[0, 1]`` at world ``points (..., 2)``, bilinear between cell centres.
 
     Args:
-        grid: ``(H, W)`` int8 quantised log-odds.
+        read: ``(cols, rows) -> int8 cells`` of one map (unknown outside it).
         points: ``(..., 2)`` world coordinates.
-        spec: grid geometry.
+        frame: resolution and origin of the map (:class:`GridSpec` or a paged layout).
         saturation: log-odds step count at which a cell counts as fully occupied.
     """
     dtype = points.dtype
-    res = jnp.asarray(spec.resolution, dtype)
-    origin = jnp.asarray([spec.origin_x, spec.origin_y], dtype)
-    u = (points - origin) / res - 0.5
+    u = _cell_coords(points, frame) - 0.5
     base = jnp.floor(u)
     frac = u - base
     base = base.astype(jnp.int32)
     col0, row0 = base[..., 0], base[..., 1]
-    flat = grid.reshape(-1)
-    h, w = spec.height, spec.width
     sat = jnp.asarray(saturation, dtype)
 
     def cell(dc, dr):
-        c = col0 + dc
-        r = row0 + dr
-        inside = (c >= 0) & (c < w) & (r >= 0) & (r < h)
-        idx = jnp.where(inside, r * w + c, 0)
-        v = flat[idx].astype(dtype)
-        return jnp.where(inside, jnp.clip(v, 0, sat) / sat, 0.0)
+        return jnp.clip(read(col0 + dc, row0 + dr).astype(dtype), 0, sat) / sat
 
     fx, fy = frac[..., 0], frac[..., 1]
     return (
@@ -81,7 +76,7 @@ def bilinear_occupancy(grid: Array, points: Array, spec: GridSpec, saturation) -
     )
 
 
-def gaussian_window_occupancy(grid: Array, points: Array, spec: GridSpec, saturation, sigma) -> Array:
+def gaussian_window_occupancy(read: CellReader, points: Array, frame, saturation, sigma) -> Array:
     r"""GMapping-style neighbourhood evidence at world ``points (..., 2)``.
 
     :math:`\max_{c \in 3\times 3} o(c)\, k(\Delta x^2/\sigma^2)\, k(\Delta y^2/\sigma^2)`
@@ -90,59 +85,56 @@ def gaussian_window_occupancy(grid: Array, points: Array, spec: GridSpec, satura
     :math:`k(x) = \max(1 - x/4, 0)^4 \approx e^{-x}`: GMapping's ``kernelSize = 1``
     window with its Gaussian of the distance, on cell centres instead of the
     per-cell mean hit point, and a polynomial in place of the exponential (which
-    cost as much as the rest of the score on a CPU).
+    cost as much as the rest of the score on a CPU). Cells outside the map read as
+    unknown.
     """
     dtype = points.dtype
-    res = jnp.asarray(spec.resolution, dtype)
-    origin = jnp.asarray([spec.origin_x, spec.origin_y], dtype)
-    u = (points - origin) / res
+    u = _cell_coords(points, frame)
     cell = jnp.floor(u).astype(jnp.int32)
-    # Window clamped into the grid; its cell centres are taken where it really is.
-    col0 = jnp.clip(cell[..., 0] - 1, 0, spec.width - 3)
-    row0 = jnp.clip(cell[..., 1] - 1, 0, spec.height - 3)
+    col0 = cell[..., 0] - 1
+    row0 = cell[..., 1] - 1
     sat = jnp.asarray(saturation, dtype)
+    res = jnp.asarray(frame.resolution, dtype)
     scale = res * res / jnp.asarray(sigma, dtype) ** 2
     offs = jnp.arange(3, dtype=dtype) + 0.5
     # k(d^2) ~ k(dx^2) k(dy^2): 6 kernel values per beam, not 9.
     kx = _bump(((col0.astype(dtype)[..., None] + offs - u[..., 0:1]) ** 2) * scale)
     ky = _bump(((row0.astype(dtype)[..., None] + offs - u[..., 1:2]) ** 2) * scale)
-    flat = grid.reshape(-1)
-    base = row0 * spec.width + col0
     best = jnp.zeros(points.shape[:-1], dtype)
     for j in range(3):
         for i in range(3):
-            v = jnp.clip(flat[base + (j * spec.width + i)].astype(dtype), 0, sat)
+            v = jnp.clip(read(col0 + i, row0 + j).astype(dtype), 0, sat)
             best = jnp.maximum(best, v * (kx[..., i] * ky[..., j]))
     return best / sat
 
 
-def gaussian_nearest_occupancy(grid: Array, points: Array, spec: GridSpec, saturation, sigma) -> Array:
+def gaussian_nearest_occupancy(read: CellReader, points: Array, frame, saturation, sigma) -> Array:
     r"""Like :func:`gaussian_window_occupancy` over the 2 x 2 cells whose centres
     surround the end point (the bilinear stencil): 4 cells per beam."""
     dtype = points.dtype
-    res = jnp.asarray(spec.resolution, dtype)
-    origin = jnp.asarray([spec.origin_x, spec.origin_y], dtype)
-    u = (points - origin) / res - 0.5
+    u = _cell_coords(points, frame) - 0.5
     base = jnp.floor(u)
-    frac = u - base
-    base = base.astype(jnp.int32)
-    col0 = jnp.clip(base[..., 0], 0, spec.width - 2)
-    row0 = jnp.clip(base[..., 1], 0, spec.height - 2)
-    fx = u[..., 0] - col0.astype(dtype)
-    fy = u[..., 1] - row0.astype(dtype)
-    del frac
+    col0 = base[..., 0].astype(jnp.int32)
+    row0 = base[..., 1].astype(jnp.int32)
+    fx = u[..., 0] - base[..., 0]
+    fy = u[..., 1] - base[..., 1]
     sat = jnp.asarray(saturation, dtype)
+    res = jnp.asarray(frame.resolution, dtype)
     scale = res * res / jnp.asarray(sigma, dtype) ** 2
     kx = (_bump(fx * fx * scale), _bump((1 - fx) * (1 - fx) * scale))
     ky = (_bump(fy * fy * scale), _bump((1 - fy) * (1 - fy) * scale))
-    flat = grid.reshape(-1)
-    start = row0 * spec.width + col0
     best = jnp.zeros(points.shape[:-1], dtype)
     for j in range(2):
         for i in range(2):
-            v = jnp.clip(flat[start + (j * spec.width + i)].astype(dtype), 0, sat)
+            v = jnp.clip(read(col0 + i, row0 + j).astype(dtype), 0, sat)
             best = jnp.maximum(best, v * (kx[i] * ky[j]))
     return best / sat
+
+
+def _cell_coords(points: Array, frame) -> Array:
+    """Continuous cell coordinates ``(col, row)`` of world points."""
+    origin = jnp.asarray([frame.origin_x, frame.origin_y], points.dtype)
+    return (points - origin) / jnp.asarray(frame.resolution, points.dtype)
 
 
 KERNELS = ("bilinear", "gaussian2", "gaussian3")
@@ -156,14 +148,14 @@ def _bump(x: Array) -> Array:
     return t * t
 
 
-def evidence(grid: Array, points: Array, spec: GridSpec, saturation, sigma, kernel: str = "bilinear") -> Array:
+def evidence(read: CellReader, points: Array, frame, saturation, sigma, kernel: str = "bilinear") -> Array:
     """Map evidence in ``[0, 1]`` at world points with the chosen (static) kernel."""
     if kernel == "bilinear":
-        return bilinear_occupancy(grid, points, spec, saturation)
+        return bilinear_occupancy(read, points, frame, saturation)
     if kernel == "gaussian3":
-        return gaussian_window_occupancy(grid, points, spec, saturation, sigma)
+        return gaussian_window_occupancy(read, points, frame, saturation, sigma)
     if kernel == "gaussian2":
-        return gaussian_nearest_occupancy(grid, points, spec, saturation, sigma)
+        return gaussian_nearest_occupancy(read, points, frame, saturation, sigma)
     raise ValueError(f"unknown score kernel {kernel!r}; choose one of {KERNELS}")
 
 
@@ -175,21 +167,21 @@ class ScoreModel(NamedTuple):
     floor: Array | float = 0.018
 
 
-def free_points(local_points: Array, spec: GridSpec) -> Array:
+def free_points(local_points: Array, frame) -> Array:
     """Points ``sqrt(2)`` cells before each end point, towards the sensor (GMapping's
     ``freeCellRatio``), in the laser frame."""
     dist = jnp.sqrt(jnp.sum(local_points * local_points, -1, keepdims=True))
-    back = jnp.asarray(spec.resolution * 2**0.5, local_points.dtype)
+    back = jnp.asarray(frame.resolution * 2**0.5, local_points.dtype)
     scale = jnp.where(dist > back, 1.0 - back / jnp.where(dist > back, dist, 1.0), 0.0)
     return local_points * scale
 
 
 def endpoint_occupancy(
-    grid: Array,
+    read: CellReader,
     pose: Array,
     local_points: Array,
     laser_offset: Array,
-    spec: GridSpec,
+    frame,
     model: ScoreModel,
     kernel: str = "bilinear",
     free_check: bool = False,
@@ -203,69 +195,65 @@ def endpoint_occupancy(
     """
     sensor = se2.compose(pose, laser_offset.astype(pose.dtype))
     world = se2.transform_points(sensor, local_points.astype(pose.dtype))
-    value = evidence(grid, world, spec, model.saturation, model.sigma, kernel)
+    value = evidence(read, world, frame, model.saturation, model.sigma, kernel)
     if free_check:
-        before = se2.transform_points(sensor, free_points(local_points.astype(pose.dtype), spec))
-        cell = jnp.floor(
-            (before - jnp.asarray([spec.origin_x, spec.origin_y], pose.dtype)) / jnp.asarray(spec.resolution, pose.dtype)
-        ).astype(jnp.int32)
-        inside = (cell[..., 0] >= 0) & (cell[..., 0] < spec.width) & (cell[..., 1] >= 0) & (cell[..., 1] < spec.height)
-        idx = jnp.where(inside, cell[..., 1] * spec.width + cell[..., 0], 0)
+        before = se2.transform_points(sensor, free_points(local_points.astype(pose.dtype), frame))
+        cell = jnp.floor(_cell_coords(before, frame)).astype(jnp.int32)
         sat = jnp.asarray(model.saturation, value.dtype)
-        occ_before = jnp.where(inside, jnp.clip(grid.reshape(-1)[idx].astype(value.dtype), 0, sat) / sat, 0.0)
+        occ_before = jnp.clip(read(cell[..., 0], cell[..., 1]).astype(value.dtype), 0, sat) / sat
         value = value * (1.0 - occ_before)
     return value
 
 
 def scan_score(
-    grid: Array,
+    read: CellReader,
     pose: Array,
     local_points: Array,
     mask: Array,
     laser_offset: Array,
-    spec: GridSpec,
+    frame,
     model: ScoreModel,
     kernel: str = "bilinear",
     free_check: bool = False,
 ) -> Array:
     """Matching score ``sum_b m_b o(e_b)`` for one pose."""
-    occ = endpoint_occupancy(grid, pose, local_points, laser_offset, spec, model, kernel, free_check)
+    occ = endpoint_occupancy(read, pose, local_points, laser_offset, frame, model, kernel, free_check)
     return jnp.sum(jnp.where(mask, occ, 0.0))
 
 
 def scan_log_likelihood(
-    grid: Array,
+    read: CellReader,
     pose: Array,
     local_points: Array,
     mask: Array,
     laser_offset: Array,
-    spec: GridSpec,
+    frame,
     model: ScoreModel,
     kernel: str = "bilinear",
     free_check: bool = False,
 ) -> tuple[Array, Array]:
     """``(log p(z | x, m), score)`` for one pose (see module docstring)."""
-    occ = endpoint_occupancy(grid, pose, local_points, laser_offset, spec, model, kernel, free_check)
+    occ = endpoint_occupancy(read, pose, local_points, laser_offset, frame, model, kernel, free_check)
     eps = jnp.asarray(model.floor, occ.dtype)
     log_lik = jnp.log(eps + (1 - eps) * occ)
     return jnp.sum(jnp.where(mask, log_lik, 0.0)), jnp.sum(jnp.where(mask, occ, 0.0))
 
 
 def make_score_fn(
-    grid,
+    read: CellReader,
     local_points,
     mask,
     laser_offset,
-    spec: GridSpec,
+    frame,
     model: ScoreModel,
     kernel: str = "bilinear",
     free_check: bool = False,
 ):
-    """``poses (C, 3) -> scores (C,)`` for one particle's grid (closure for the matchers)."""
+    """``poses (C, 3) -> scores (C,)`` for one particle's map (closure for the matchers)."""
 
     def score_fn(poses: Array) -> Array:
         return jax.vmap(
-            lambda p: scan_score(grid, p, local_points, mask, laser_offset, spec, model, kernel, free_check)
+            lambda p: scan_score(read, p, local_points, mask, laser_offset, frame, model, kernel, free_check)
         )(poses)
 
     return score_fn

@@ -45,7 +45,7 @@ Algorithm 2 literally: the corrector starts at :math:`\mu` and the particle move
 built at :math:`\nu`. With ``"posterior"`` the copies of a resampled particle only
 separate by the small posterior spread, so ``"prior"`` is the default for ``pc``;
 ``npc`` (no corrector) uses ``"posterior"``. Weights, map integration and selective
-resampling are as in GMapping (:func:`jaxslam.grid.common.finish_step`).
+resampling are as in GMapping (:func:`jaxslam.grid.filter.finish_step`).
 """
 
 from __future__ import annotations
@@ -61,7 +61,16 @@ from jax.scipy.linalg import cho_solve
 from jaxslam.core import se2
 from jaxslam.core.sigma import UTParams
 from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
-from jaxslam.grid.common import (
+from jaxslam.grid.driver import scan_runner
+from jaxslam.grid.filter import (
+    finish_step,
+    guard,
+    init,
+    match_geometry,
+    particle_reader,
+    score_model,
+)
+from jaxslam.grid.types import (
     GridSlamConfig,
     GridSlamInfo,
     GridSlamParams,
@@ -69,12 +78,8 @@ from jaxslam.grid.common import (
     Odometry,
     Scan,
     as_odometry,
-    finish_step,
-    init,
-    match_geometry,
-    scan_keyframes,
-    score_model,
 )
+from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
 from jaxslam.models.odometry import (
@@ -130,7 +135,7 @@ def predict(pose: Array, pose_sqrt_cov: Array, control: Array, params: GridSlamP
 
 def particle_update(
     key: Array,
-    grid: Array,
+    read: CellReader,
     pose: Array,
     pose_sqrt_cov: Array,
     control: Array,
@@ -152,7 +157,7 @@ def particle_update(
     model = score_model(params)
     kernel = config.score_kernel
     score_fn = make_score_fn(
-        grid, local_points, mask, params.laser_offset, config.spec, model, kernel, config.free_check
+        read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
     key_prior, key_post = jax.random.split(key)
@@ -183,7 +188,7 @@ def particle_update(
         raise ValueError(f"correction must be 'pc' or 'npc', got {config.correction!r}")
     update = sqrt_measurement_update(prediction, nu, jnp.diag(params.match_noise.astype(dtype)))
     log_lik, score = scan_log_likelihood(
-        grid, nu, local_points, mask, params.laser_offset, config.spec, model, kernel, config.free_check
+        read, nu, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     if config.sampling == "posterior":
         next_pose = nu + update.sqrt_cov @ jax.random.normal(key_post, (3,), dtype)
@@ -193,7 +198,7 @@ def particle_update(
     return nu, next_pose, update.sqrt_cov, score / count, log_lik, update.pd_ok
 
 
-def step(
+def _step(
     key: Array,
     state: GridSlamState,
     control: Odometry | Array,
@@ -218,28 +223,20 @@ def step(
     keys = jax.random.split(key_sample, n)
     local_points, mask = match_geometry(observation, params, config)
 
-    def particle(k, grid, pose, sqrt_cov):
-        return particle_update(k, grid, pose, sqrt_cov, control, local_points, mask, params, config)
+    def particle(k, table, pose, sqrt_cov):
+        read = particle_reader(state, table, config)
+        return particle_update(k, read, pose, sqrt_cov, control, local_points, mask, params, config)
 
     nu, samples, sqrt_covs, scores, log_liks, ok = jax.vmap(particle)(
-        keys, state.grids, state.poses, state.pose_sqrt_covs
+        keys, state.maps.tables, state.poses, state.pose_sqrt_covs
     )
     return finish_step(
         key_resample, state, nu, samples, sqrt_covs, log_liks, scores, ok, observation, params, config
     )
 
 
-@partial(jax.jit, static_argnames=("config",), donate_argnames=("state",))
-def run(
-    key: Array,
-    state: GridSlamState,
-    controls: Odometry | Array,
-    observations: Scan,
-    params: GridSlamParams,
-    config: GridSlamConfig,
-) -> tuple[GridSlamState, GridSlamInfo]:
-    """Scan :func:`step` over keyframes: ``controls`` stacked over ``T``, ``observations (T, B)``."""
-    return scan_keyframes(step, key, state, controls, observations, params, config)
+step = guard(_step)
+run = scan_runner(step)
 
 
 __all__ = ["MeasurementUpdate", "init", "particle_update", "predict", "run", "sqrt_measurement_update", "step"]

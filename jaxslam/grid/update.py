@@ -42,6 +42,16 @@ from jax import Array
 
 from jaxslam.core import se2
 from jaxslam.grid.map import GridSpec, flat_index
+from jaxslam.grid.paged import (
+    STATUS_OK,
+    MapStatus,
+    PagedLayout,
+    PagedMaps,
+    local_cell,
+    plan_writes,
+    window_index,
+    window_side,
+)
 
 ROW = 16
 """Slots per layout row: a row holds ``ROW`` consecutive samples of one beam."""
@@ -144,23 +154,37 @@ def ray_geometry(sensor_pose: Array, lengths: Array, angles: Array, spec: GridSp
     return RayGeometry(start, end, steps, count)
 
 
-def free_cells(geometry: RayGeometry, beam: Array, first: Array, active: Array, spec: GridSpec) -> Array:
-    r"""Flat indices ``(R, ROW)`` of the free cells of rows ``(beam, first, active)``.
+def free_cell_coords(geometry: RayGeometry, beam: Array, first: Array, active: Array) -> tuple[Array, Array, Array]:
+    r"""Cells ``(cols, rows)`` ``(R, ROW)`` of the free samples of rows ``(beam, first, active)``
+    and whether each slot holds one.
 
     Cell ``k`` of a beam is :math:`c_0 + \mathrm{round}(k \Delta / n)` (ties up), for
-    ``k < n``; other slots get the sentinel. ``k \Delta / n`` is formed as
-    ``k * fl(Delta / n)``, whose float32 error stays below ``1e-4`` for ``k <= 1600``;
-    adding that margin before the floor rounds exact ties up (as
-    ``floor((2 k Delta + n) / (2 n))``) while the nearest non-tie is ``1 / (2n) > 3e-4``
-    away, so the cells equal the integer formula for beams of up to 1600 cells.
+    ``k < n``. ``k \Delta / n`` is formed as ``k * fl(Delta / n)``, whose float32 error
+    stays below ``1e-4`` for ``k <= 1600``; adding that margin before the floor rounds
+    exact ties up (as ``floor((2 k Delta + n) / (2 n))``) while the nearest non-tie is
+    ``1 / (2n) > 3e-4`` away, so the cells equal the integer formula for beams of up to
+    1600 cells.
     """
     k = first[:, None] + jnp.arange(ROW, dtype=jnp.int32)[None, :]
+    count = jnp.where(active, geometry.count[beam], 0)
+    cols, rows = cell_at(geometry, beam[:, None], k)
+    return cols, rows, k < count[:, None]
+
+
+def cell_at(geometry: RayGeometry, beam: Array, k: Array) -> tuple[Array, Array]:
+    """Cell ``k`` of beam ``beam`` (broadcasting), by the rounding rule of :func:`free_cell_coords`."""
     kf = k.astype(jnp.float32)
     steps = geometry.steps[beam]
-    count = jnp.where(active, geometry.count[beam], 0)
-    cols = geometry.start[0] + jnp.floor(kf * steps[:, 0:1] + (0.5 + _TIE_EPS)).astype(jnp.int32)
-    rows = geometry.start[1] + jnp.floor(kf * steps[:, 1:2] + (0.5 + _TIE_EPS)).astype(jnp.int32)
-    return jnp.where(k < count[:, None], flat_index(cols, rows, spec), spec.num_cells)
+    cols = geometry.start[0] + jnp.floor(kf * steps[..., 0] + (0.5 + _TIE_EPS)).astype(jnp.int32)
+    rows = geometry.start[1] + jnp.floor(kf * steps[..., 1] + (0.5 + _TIE_EPS)).astype(jnp.int32)
+    return cols, rows
+
+
+def free_cells(geometry: RayGeometry, beam: Array, first: Array, active: Array, spec: GridSpec) -> Array:
+    """Flat indices ``(R, ROW)`` of the free cells of rows ``(beam, first, active)`` in a
+    dense grid (:func:`free_cell_coords`); other slots get the sentinel."""
+    cols, rows, ok = free_cell_coords(geometry, beam, first, active)
+    return jnp.where(ok, flat_index(cols, rows, spec), spec.num_cells)
 
 
 def hit_cells(geometry: RayGeometry, hits: Array, spec: GridSpec) -> Array:
@@ -232,6 +256,100 @@ def sensor_pose_of(pose: Array, laser_offset: Array) -> Array:
     return se2.compose(pose, laser_offset.astype(pose.dtype))
 
 
+class ScanRays(NamedTuple):
+    """One scan's ray samples for every particle, laid out in chunks of rows."""
+
+    geometry: RayGeometry  # batched over particles
+    beam: Array  # (padded_rows,) int32
+    first: Array  # (padded_rows,) int32
+    active: Array  # (padded_rows,) bool
+    hits: Array  # (B,) bool
+    num_chunks: Array  # () int32 chunks this scan uses
+    chunk_rows: int
+    dropped: Array  # () int32 samples past the budget
+
+
+def scan_rays(
+    poses: Array,
+    ranges: Array,
+    beam_valid: Array,
+    angles: Array,
+    laser_offset: Array,
+    frame,
+    max_points: int,
+    usable_range,
+    chunk_rows: int = 128,
+) -> ScanRays:
+    """Ray geometry of one scan at robot ``poses (P, 3)`` and its chunked row layout.
+
+    ``frame`` is anything with ``resolution``, ``origin_x`` and ``origin_y`` (a
+    :class:`~jaxslam.grid.map.GridSpec` or a paged layout).
+    """
+    num_beams = ranges.shape[0]
+    lengths, hits = beam_lengths(ranges, beam_valid, usable_range)
+    max_rows = num_rows(max_points, num_beams)
+    chunk_rows = min(chunk_rows, max_rows)
+    padded_rows = -(-max_rows // chunk_rows) * chunk_rows
+    layout = beam_layout(lengths, beam_valid, frame.resolution, max_rows)
+    pad = padded_rows - max_rows
+    sensor = sensor_pose_of(poses, laser_offset)
+    geometry = jax.vmap(lambda p: ray_geometry(p, lengths, angles, frame))(sensor)
+    return ScanRays(
+        geometry,
+        jnp.pad(layout.beam, (0, pad)),
+        jnp.pad(layout.first, (0, pad)),
+        jnp.pad(layout.active, (0, pad)),
+        hits,
+        (layout.rows + chunk_rows - 1) // chunk_rows,
+        chunk_rows,
+        layout.dropped,
+    )
+
+
+def chunk_cell_coords(rays: ScanRays, i) -> tuple[Array, Array, Array]:
+    """Free cells ``(P, chunk_rows * ROW)`` (cols, rows, in use) of chunk ``i``."""
+    start = i * rays.chunk_rows
+    rows_of = [jax.lax.dynamic_slice_in_dim(a, start, rays.chunk_rows) for a in (rays.beam, rays.first, rays.active)]
+    cols, rows, ok = jax.vmap(free_cell_coords, (0, None, None, None))(rays.geometry, *rows_of)
+    shape = (cols.shape[0], -1)
+    return cols.reshape(shape), rows.reshape(shape), ok.reshape(shape)
+
+
+def integrate_rays(flat: Array, rays: ScanRays, index_of, l_free, l_occ, l_max) -> Array:
+    """Apply the inverse sensor model of one scan to a flat cell buffer.
+
+    ``index_of(cols, rows, ok) -> (P, n)`` maps the cells of every particle to
+    indices into ``flat`` (``flat.shape[0]`` or more for slots to skip). Pass 1 reads
+    every free cell before pass 2 writes any, so that a cell crossed by beams of
+    several chunks still changes once per scan; then the hit cells. Both passes run
+    only over the chunks this scan uses; the buffer rides through the loops as loop
+    state so that XLA can update a donated buffer in place.
+    """
+    l_max = jnp.clip(quantise(l_max), 0, 127)
+    inc_free, inc_occ = quantise(l_free), quantise(l_occ)
+    num_particles = rays.geometry.start.shape[0]
+    width = rays.chunk_rows * ROW
+
+    def read_body(i, carry):
+        flat, olds = carry
+        old = flat.at[index_of(*chunk_cell_coords(rays, i))].get(mode="fill", fill_value=0)
+        return flat, jax.lax.dynamic_update_slice_in_dim(olds, old, i * width, axis=1)
+
+    olds = jnp.zeros((num_particles, rays.beam.shape[0] * ROW), flat.dtype)
+    flat, olds = jax.lax.fori_loop(0, rays.num_chunks, read_body, (flat, olds))
+
+    def write_body(i, flat):
+        idx = index_of(*chunk_cell_coords(rays, i))
+        old = jax.lax.dynamic_slice_in_dim(olds, i * width, width, axis=1).astype(jnp.int32)
+        new = jnp.clip(old + inc_free, -l_max, l_max).astype(flat.dtype)
+        return flat.at[idx].set(new, mode="drop")
+
+    flat = jax.lax.fori_loop(0, rays.num_chunks, write_body, flat)
+    end = rays.geometry.end
+    hit_idx = index_of(end[..., 0], end[..., 1], jnp.broadcast_to(rays.hits, end.shape[:-1]))
+    return _apply(flat, hit_idx, inc_occ, l_max)
+
+
 def update_grids(
     grids: Array,
     poses: Array,
@@ -247,74 +365,101 @@ def update_grids(
     l_max,
     chunk_rows: int = 128,
 ) -> tuple[Array, Array]:
-    """Integrate one scan into every particle's grid ``(P, H, W)`` at robot ``poses (P, 3)``.
+    """Integrate one scan into dense grids ``(P, H, W)`` at robot ``poses (P, 3)``.
 
     Same result as ``vmap(update_grid)`` on the laser poses, but the free cells are
     processed ``chunk_rows`` rows at a time and only as many chunks run as this scan
-    needs (loops whose trip count is shared by all particles), so a short scan does
-    not pay for the ``max_points`` budget. All free cells are read before any is
-    written, which keeps the once-per-scan semantics across chunks.
+    needs (:func:`integrate_rays`), so a short scan does not pay for the
+    ``max_points`` budget. The dense reference of the paged maps
+    (:func:`jaxslam.grid.paged_update.update_paged`).
 
     Returns:
         ``(grids, dropped)`` where ``dropped`` counts ray samples past the budget.
     """
-    num_beams = ranges.shape[0]
-    lengths, hits = beam_lengths(ranges, beam_valid, usable_range)
-    max_rows = num_rows(max_points, num_beams)
-    chunk_rows = min(chunk_rows, max_rows)
-    padded_rows = -(-max_rows // chunk_rows) * chunk_rows
-    layout = beam_layout(lengths, beam_valid, spec.resolution, max_rows)
-    pad = padded_rows - max_rows
-    beam = jnp.pad(layout.beam, (0, pad))
-    first = jnp.pad(layout.first, (0, pad))
-    active = jnp.pad(layout.active, (0, pad))
-    num_chunks = (layout.rows + chunk_rows - 1) // chunk_rows
-    sensor = sensor_pose_of(poses, laser_offset)
-    geometry = jax.vmap(lambda p: ray_geometry(p, lengths, angles, spec))(sensor)
-    l_max = jnp.clip(quantise(l_max), 0, 127)
-    inc_free, inc_occ = quantise(l_free), quantise(l_occ)
+    rays = scan_rays(poses, ranges, beam_valid, angles, laser_offset, spec, max_points, usable_range, chunk_rows)
+    base = (jnp.arange(grids.shape[0], dtype=jnp.int32) * spec.num_cells)[:, None]
+    total = grids.size
 
-    def chunk(i):
-        start = i * chunk_rows
-        return (
-            jax.lax.dynamic_slice_in_dim(beam, start, chunk_rows),
-            jax.lax.dynamic_slice_in_dim(first, start, chunk_rows),
-            jax.lax.dynamic_slice_in_dim(active, start, chunk_rows),
-        )
+    def index_of(cols, rows, ok):
+        inside = ok & (cols >= 0) & (cols < spec.width) & (rows >= 0) & (rows < spec.height)
+        return jnp.where(inside, base + rows * spec.width + cols, total)
 
-    def chunk_cells(geom, beam_c, first_c, active_c):
-        return free_cells(geom, beam_c, first_c, active_c, spec).reshape(-1)
+    flat = integrate_rays(grids.reshape(-1), rays, index_of, l_free, l_occ, l_max)
+    return flat.reshape(grids.shape), rays.dropped
 
-    cells_of = jax.vmap(chunk_cells, (0, None, None, None))
-    flat = grids.reshape(grids.shape[0], -1)
-    width = chunk_rows * ROW
 
-    # Pass 1 reads every free cell before pass 2 writes any, so that a cell crossed
-    # by beams of several chunks still changes once per scan; both passes run only
-    # over the chunks this scan uses. The grids ride through both loops as loop
-    # state so that XLA can update the donated buffer in place.
-    def read_body(i, carry):
-        flat, olds = carry
-        idx = cells_of(geometry, *chunk(i))
-        old = jax.vmap(lambda g, ix: g.at[ix].get(mode="fill", fill_value=0))(flat, idx)
-        return flat, jax.lax.dynamic_update_slice_in_dim(olds, old, i * width, axis=1)
+def touched_tiles(rays: ScanRays, x0: Array, y0: Array, side: int, layout: PagedLayout) -> Array:
+    """``(P, side * side)`` bool: the window tiles that one scan's cells fall in.
 
-    olds = jnp.zeros((flat.shape[0], padded_rows * ROW), flat.dtype)
-    flat, olds = jax.lax.fori_loop(0, num_chunks, read_body, (flat, olds))
+    A row of :data:`ROW` consecutive cells of one beam (``ROW`` < tile size) spans at
+    most two tile columns and two tile rows; marking the tiles of its first and last
+    cell and of their two corner combinations covers every tile it touches (and at
+    most one it only passes by, which then gets a slot it does not need). Hit cells are
+    marked one by one.
+    """
+    k_last = jnp.minimum(rays.first + ROW - 1, jnp.where(rays.active, rays.geometry.count[:, rays.beam], 0) - 1)
+    used = rays.active & (rays.first <= k_last)
+    c0, r0 = jax.vmap(cell_at, (0, None, None))(rays.geometry, rays.beam, rays.first)
+    c1, r1 = jax.vmap(lambda g, b, k: cell_at(g, b, k))(rays.geometry, jnp.broadcast_to(rays.beam, k_last.shape), k_last)
+    cols = jnp.concatenate([c0, c1, c0, c1, rays.geometry.end[..., 0]], 1)
+    rows = jnp.concatenate([r0, r1, r1, r0, rays.geometry.end[..., 1]], 1)
+    ok = jnp.concatenate([used, used, used, used, jnp.broadcast_to(rays.hits, rays.geometry.end.shape[:-1])], 1)
+    rel = window_index(cols, rows, x0[:, None], y0[:, None], side, layout)
+    rel = jnp.where(ok, rel, side * side)
+    marks = jnp.zeros((rel.shape[0], side * side + 1), bool)
+    marks = marks.at[jnp.arange(rel.shape[0])[:, None], rel].set(True)
+    return marks[:, :-1]
 
-    def write_body(i, flat):
-        idx = cells_of(geometry, *chunk(i))
-        old = jax.lax.dynamic_slice_in_dim(olds, i * width, width, axis=1).astype(jnp.int32)
-        new = jnp.clip(old + inc_free, -l_max, l_max).astype(flat.dtype)
-        return jax.vmap(lambda g, ix, v: g.at[ix].set(v, mode="drop"))(flat, idx, new)
 
-    flat = jax.lax.fori_loop(0, num_chunks, write_body, flat)
+def update_paged(
+    maps: PagedMaps,
+    layout: PagedLayout,
+    poses: Array,
+    ranges: Array,
+    beam_valid: Array,
+    angles: Array,
+    laser_offset: Array,
+    max_points: int,
+    usable_range,
+    window_range: float,
+    l_free,
+    l_occ,
+    l_max,
+    chunk_rows: int = 128,
+) -> tuple[PagedMaps, Array, MapStatus]:
+    """Integrate one scan into every particle's paged map at robot ``poses (P, 3)``.
 
-    def hit_update(grid, geom):
-        return _apply(grid, hit_cells(geom, hits, spec), inc_occ, l_max)
+    The cells and values are those of :func:`update_grids` on dense grids; the tiles
+    they fall in are allocated or copied first (:func:`jaxslam.grid.paged.plan_writes`).
+    ``window_range`` (static, m) sizes the window of tiles around each sensor; the
+    traced ``usable_range`` is cropped to it. When the plan is refused (pool full, or a tile outside the page table)
+    the maps come back unchanged with the reason in the status.
 
-    flat = jax.vmap(hit_update)(flat, geometry)
-    return flat.reshape(grids.shape), layout.dropped
+    Returns:
+        ``(maps, dropped, status)``.
+    """
+    usable = jnp.minimum(usable_range, jnp.asarray(window_range, poses.dtype))
+    rays = scan_rays(poses, ranges, beam_valid, angles, laser_offset, layout, max_points, usable, chunk_rows)
+    side = window_side(float(window_range), layout)
+    half = side // 2
+    x0 = (rays.geometry.start[:, 0] >> layout.tile_bits) - half
+    y0 = (rays.geometry.start[:, 1] >> layout.tile_bits) - half
+    plan = plan_writes(maps, touched_tiles(rays, x0, y0, side, layout), x0, y0, side, layout)
+    slots = jnp.pad(plan.slots, ((0, 0), (0, 1)))
+    pool_size = plan.maps.pool.size
+    rows_p = jnp.arange(slots.shape[0])[:, None]
+
+    def index_of(cols, rows, ok):
+        rel = window_index(cols, rows, x0[:, None], y0[:, None], side, layout)
+        slot = slots[rows_p, rel]
+        use = ok & (slot > 0)
+        return jnp.where(use, slot * layout.tile_cells + local_cell(cols, rows, layout), pool_size)
+
+    def write(pool):
+        return integrate_rays(pool.reshape(-1), rays, index_of, l_free, l_occ, l_max).reshape(pool.shape)
+
+    pool = jax.lax.cond(plan.status.code == STATUS_OK, write, lambda pool: pool, plan.maps.pool)
+    return plan.maps._replace(pool=pool), rays.dropped, plan.status
 
 
 __all__ = [
@@ -323,7 +468,13 @@ __all__ = [
     "RayGeometry",
     "beam_layout",
     "beam_lengths",
+    "ScanRays",
+    "cell_at",
+    "chunk_cell_coords",
+    "free_cell_coords",
     "free_cells",
+    "integrate_rays",
+    "scan_rays",
     "hit_cells",
     "num_rows",
     "quantise",
@@ -332,6 +483,8 @@ __all__ = [
     "required_points",
     "samples_per_beam",
     "sensor_pose_of",
+    "touched_tiles",
     "update_grid",
+    "update_paged",
     "update_grids",
 ]

@@ -19,7 +19,8 @@ def test_run_grid_slam_on_simulation():
     err = np.hypot(*(result.trajectory[:, :2] - log.true_poses[:, :2]).T)
     assert err.mean() < 0.1
     h, w = result.map_log_odds.shape
-    assert (h, w) == (result.config.spec.height, result.config.spec.width)
+    tile = result.config.layout.tile
+    assert h % tile == 0 and w % tile == 0 and h * w <= result.config.layout.table_size * tile * tile
     assert result.map_log_odds.dtype == np.float32 and (result.map_log_odds > 0).any()
     summary = result.summary()
     for key in ("algorithm", "dataset", "particles", "seed", "scans", "keyframes", "wall_s", "compile_s",

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from jaxslam.datasets.laser_sim import office_world, raycast
-from jaxslam.grid.common import GridSlamParams, default_params, score_model
-from jaxslam.grid.map import GridSpec, init_grids
+from jaxslam.grid.filter import score_model
+from jaxslam.grid.map import GridSpec, dense_reader, init_grids
+from jaxslam.grid.types import GridSlamParams, default_params
 from jaxslam.grid.matching import EllipseBound, get_matcher, hill_climb
 from jaxslam.grid.score import (
     ScoreModel,
@@ -53,12 +54,12 @@ def np_window(grid, x, y, spec, sat, sigma, half):
     u = (x - spec.origin_x) / spec.resolution
     v = (y - spec.origin_y) / spec.resolution
     if half == 1:
-        c0 = min(max(int(np.floor(u)) - 1, 0), spec.width - 3)
-        r0 = min(max(int(np.floor(v)) - 1, 0), spec.height - 3)
+        c0 = int(np.floor(u)) - 1
+        r0 = int(np.floor(v)) - 1
         cells = [(c0 + i, r0 + j) for i in range(3) for j in range(3)]
     else:
-        c0 = min(max(int(np.floor(u - 0.5)), 0), spec.width - 2)
-        r0 = min(max(int(np.floor(v - 0.5)), 0), spec.height - 2)
+        c0 = int(np.floor(u - 0.5))
+        r0 = int(np.floor(v - 0.5))
         cells = [(c0 + i, r0 + j) for i in range(2) for j in range(2)]
     best = 0.0
     for c, r in cells:
@@ -73,7 +74,7 @@ def test_evidence_kernels_match_numpy(kernel, dtype):
     rng = np.random.default_rng(1)
     grid = rng.integers(-10, 12, SPEC.shape).astype(np.int8)
     pts = np.stack([rng.uniform(-1.3, 2.3, 200), rng.uniform(-0.8, 2.2, 200)], -1)
-    g, p = jnp.asarray(grid), jnp.asarray(pts, dtype)
+    g, p = dense_reader(jnp.asarray(grid), SPEC), jnp.asarray(pts, dtype)
     if kernel == "bilinear":
         got = bilinear_occupancy(g, p, SPEC, 8.0)
         want = [np_bilinear(grid, x, y, SPEC, 8.0) for x, y in pts]
@@ -91,7 +92,7 @@ def test_log_likelihood_floor():
     grid = jnp.zeros(SPEC.shape, jnp.int8)
     pts = jnp.asarray([[0.5, 0.0], [1.0, 0.2]])
     ll, score = scan_log_likelihood(
-        grid, jnp.zeros(3), pts, jnp.asarray([True, False]), jnp.zeros(3), SPEC, ScoreModel(8.0, 0.05, 0.01)
+        dense_reader(grid, SPEC), jnp.zeros(3), pts, jnp.asarray([True, False]), jnp.zeros(3), SPEC, ScoreModel(8.0, 0.05, 0.01)
     )
     np.testing.assert_allclose(float(ll), np.log(0.01), rtol=1e-6)
     assert float(score) == 0.0
@@ -136,7 +137,7 @@ def test_matcher_recovers_known_offset(matcher, kernel):
     prm = params_for(angles)
     valid = np.isfinite(z)
     pts = beam_points(jnp.asarray(np.where(valid, z, 0.0)), jnp.asarray(angles))
-    score_fn = make_score_fn(grid, pts, jnp.asarray(valid), jnp.zeros(3), WORLD_SPEC, score_model(prm), kernel)
+    score_fn = make_score_fn(dense_reader(grid, WORLD_SPEC), pts, jnp.asarray(valid), jnp.zeros(3), WORLD_SPEC, score_model(prm), kernel)
     sqrt_cov = jnp.diag(jnp.asarray([0.08, 0.08, 0.04]))
     fn = jax.jit(lambda p: get_matcher(matcher)(score_fn, p, sqrt_cov, prm, 12, 0, prior_mean=p))
     for offset in ([0.06, -0.05, 0.03], [-0.04, 0.07, -0.025], [0.03, 0.03, 0.0]):

@@ -1,0 +1,196 @@
+"""One driver for the grid filters: keys, jit policy, chunked runs and map growth.
+
+* :func:`scan_steps` — the pure ``lax.scan`` of a filter's ``step`` over keyframes,
+  one key per keyframe from ``jax.random.split(key, T)`` (the one way step keys are
+  derived).
+* :func:`run_filter` — the host loop used by :func:`jaxslam.grid.experiment.run_grid_slam`,
+  the CLI, the notebooks and the benchmarks: ``init`` (jitted), then the keyframes
+  in jitted chunks with a progress bar (:func:`jaxslam.progress.run_scan_chunked`).
+  The chunk runner is cached per (filter, static config), so a sweep over
+  ``Params`` or a second run with the same shapes never recompiles. When a step
+  is refused because the paged maps are full (:mod:`jaxslam.grid.paged`), the
+  layout grows on the host and the run continues from that step: one extra
+  compilation per growth, counted in :class:`RunStats`, and the same result as a run
+  that started with the larger layout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxslam.grid.filter import init, reset_status
+from jaxslam.grid.paged import PagedLayout, grow
+from jaxslam.grid.types import GridSlamConfig
+from jaxslam.progress import log, make_chunk_runner, run_scan_chunked
+
+
+def scan_steps(step_fn, key, state, controls, observations, params, config):
+    """Scan ``step_fn`` over keyframes, one key per keyframe split from ``key``."""
+    keys = jax.random.split(key, observations.ranges.shape[0])
+
+    def body(carry, inputs):
+        k, u, z = inputs
+        return step_fn(k, carry, u, z, params, config)
+
+    return jax.lax.scan(body, state, (keys, controls, observations))
+
+
+def summarise(info) -> dict[str, Any]:
+    """What a run keeps of each step's ``Info`` (poses and ancestors for the path)."""
+    return {
+        "poses": info.poses,
+        "ancestors": info.ancestors,
+        "ess": info.ess,
+        "resampled": info.resampled,
+        "mean_score": jnp.mean(info.scores),
+        "best_score": jnp.max(info.scores),
+        "dropped_points": info.dropped_points,
+        "pd_ok_fraction": jnp.mean(info.pd_ok.astype(jnp.float32)),
+        "status": info.status,
+    }
+
+
+def scan_runner(step_fn):
+    """A filter module's ``run``: :func:`scan_steps` of ``step_fn``, jitted with a static
+    config. It does not donate the caller's state."""
+
+    @functools.partial(jax.jit, static_argnames=("config",))
+    def run(key, state, controls, observations, params, config: GridSlamConfig):
+        """Scan ``step`` over keyframes: ``controls`` stacked over ``T``, ``observations (T, B)``.
+
+        A step refused by the maps (``state.status``) leaves the rest of the scan a no-op;
+        :func:`run_filter` grows the maps and continues instead.
+        """
+        return scan_steps(step_fn, key, state, controls, observations, params, config)
+
+    return run
+
+
+@functools.lru_cache(maxsize=32)
+def chunk_runner(step_fn, config: GridSlamConfig):
+    """The jitted chunk runner of ``step_fn`` under ``config`` (cached: one per shape)."""
+
+    def body(carry, x):
+        state, params = carry
+        key, control, observation = x
+        state, info = step_fn(key, state, control, observation, params, config)
+        return (state, params), summarise(info)
+
+    return make_chunk_runner(body)
+
+
+@dataclass
+class RunStats:
+    """How the maps grew during a run."""
+
+    growths: list[dict[str, Any]] = field(default_factory=list)
+    compile_s: float = 0.0
+    wall_s: float = 0.0
+
+    @property
+    def recompilations(self) -> int:
+        return len(self.growths)
+
+
+def layout_json(layout: PagedLayout) -> dict[str, Any]:
+    return dataclasses.asdict(layout)
+
+
+def _grown(state, layout: PagedLayout, stats: RunStats, step: int, progress: bool):
+    status = jax.tree_util.tree_map(np.asarray, state.status)
+    maps, new_layout = grow(state.maps, layout, status)
+    what = "pool" if int(status.code) == 1 else "page table"
+    stats.growths.append(
+        {"step": int(step), "grew": what, "slots": new_layout.slots,
+         "table": [new_layout.table_width, new_layout.table_height]}
+    )
+    log(f"  maps: {what} grown at step {step} (pool {new_layout.slots} tiles, "
+        f"table {new_layout.table_width} x {new_layout.table_height}); recompiling", progress)
+    return reset_status(state._replace(maps=maps)), new_layout
+
+
+def init_state(key, params, config: GridSlamConfig, first_scan, initial_pose, stats: RunStats, progress=False):
+    """``init`` with the layout grown until the first scan fits: ``(state, config)``."""
+    while True:
+        state = init(key, params, config, first_scan, initial_pose)
+        if int(state.status.code) == 0:
+            return state, config
+        state, layout = _grown(state, config.layout, stats, 0, progress)
+        config = dataclasses.replace(config, layout=layout)
+
+
+def run_filter(
+    step_fn,
+    key,
+    params,
+    config: GridSlamConfig,
+    first_scan,
+    initial_pose,
+    controls,
+    observations,
+    *,
+    chunk: int = 64,
+    desc: str = "filter",
+    progress: bool = True,
+    checkpoint=None,
+):
+    """Run a grid filter over keyframes 1..T (keyframe 0 is ``first_scan``).
+
+    Returns:
+        ``(state, ys, config, stats)``: the final state, the stacked
+        :func:`summarise` outputs of every step, the config with the final layout
+        and :class:`RunStats` (timings, growths).
+    """
+    stats = RunStats()
+    steps = observations.ranges.shape[0]
+    keys = jax.random.split(key, steps)
+    init_key = key  # init is deterministic; it takes the key only for the protocol
+    xs = (keys, controls, observations)
+    if checkpoint is not None and checkpoint.resume and checkpoint.path.exists():
+        saved = checkpoint.saved_static().get("layout")
+        if saved is not None:
+            config = dataclasses.replace(config, layout=PagedLayout(**saved))
+        template = jax.eval_shape(lambda: init(init_key, params, config, first_scan, initial_pose))
+        state = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), template)
+    else:
+        state, config = init_state(init_key, params, config, first_scan, initial_pose, stats, progress)
+    start, prior = 0, None
+    while True:
+        if checkpoint is not None:
+            checkpoint.static = {"layout": layout_json(config.layout)}
+        (state, params), ys, timing = run_scan_chunked(
+            None, (state, params), xs, chunk=chunk, desc=desc, progress=progress,
+            runner=chunk_runner(step_fn, config), checkpoint=checkpoint, start=start,
+            stop=lambda carry: bool(carry[0].status.code != 0), prior=prior,
+        )
+        if checkpoint is not None:
+            checkpoint.resume = False
+        stats.compile_s += timing.compile_s
+        stats.wall_s += timing.wall_s
+        codes = np.asarray(ys["status"])
+        failed = np.flatnonzero(codes != 0)
+        if failed.size == 0:
+            return state, ys, config, stats
+        start = int(failed[0])
+        prior = jax.tree_util.tree_map(lambda leaf: np.asarray(leaf)[:start], ys)
+        state, layout = _grown(state, config.layout, stats, start, progress)
+        config = dataclasses.replace(config, layout=layout)
+
+
+__all__ = [
+    "RunStats",
+    "chunk_runner",
+    "init_state",
+    "layout_json",
+    "run_filter",
+    "scan_runner",
+    "scan_steps",
+    "summarise",
+]

@@ -1,0 +1,222 @@
+r"""The parts of a grid SLAM step that both filters share, and their ``init``.
+
+A step of either filter (:mod:`jaxslam.grid.gmapping`, :mod:`jaxslam.grid.srupf`):
+
+1. proposal (filter specific) and scan matching against each particle's own map,
+   read through its page table (:func:`particle_reader`);
+2. log-weights ``log w += weight_gain * log p(z | x, m)`` (see
+   :func:`jaxslam.grid.types.default_params`);
+3. the scan is integrated into every map at the corrected pose
+   (:func:`jaxslam.grid.update.update_paged`: tiles allocated or copied on write);
+4. selective resampling when ``ESS < resample_threshold * N`` (Grisetti et al.
+   2005/2007): particles take their ancestors' page tables; no cell is copied.
+
+Steps 2-4 are :func:`finish_step`. If the maps cannot take the scan (pool full, or a
+tile outside the page table) the step is not applied at all: the state is returned
+unchanged with ``status`` set, later steps pass through (:func:`guard`), and the
+host grows the maps and repeats the step (:func:`jaxslam.grid.driver.run`).
+
+Best particle: the particle with the largest accumulated log-likelihood
+(GMapping's ``weightSum``), :func:`best_particle`.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
+from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
+from jaxslam.grid.score import ScoreModel, beam_points
+from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
+from jaxslam.grid.update import update_paged
+
+
+def scan_angles(observation: Scan, params: GridSlamParams) -> Array:
+    """Beam angles ``(B,)`` of this scan in the laser frame."""
+    return params.beam_angles + jnp.asarray(observation.angle_offset, params.beam_angles.dtype)
+
+
+def score_model(params: GridSlamParams) -> ScoreModel:
+    """The traced score settings of ``params``."""
+    return ScoreModel(params.occ_saturation, params.score_sigma, params.likelihood_floor)
+
+
+def usable_range(params: GridSlamParams, config: GridSlamConfig) -> Array:
+    """``params.usable_range`` cropped to the static ``config.window_range``."""
+    return jnp.minimum(params.usable_range, jnp.asarray(config.window_range, params.usable_range.dtype))
+
+
+def match_geometry(observation: Scan, params: GridSlamParams, config: GridSlamConfig):
+    """Local end points ``(M, 2)`` and mask ``(M,)`` of the beams used for matching."""
+    idx = config.match_beams
+    ranges = observation.ranges[idx].astype(params.beam_angles.dtype)
+    valid = observation.valid[idx] & (ranges <= usable_range(params, config)) & (ranges > 0)
+    safe = jnp.where(valid, ranges, 0.0)
+    return beam_points(safe, scan_angles(observation, params)[idx]), valid
+
+
+def particle_reader(state: GridSlamState, table: Array, config: GridSlamConfig):
+    """The cell reader of the particle whose page table is ``table``."""
+    return reader(state.maps.pool, table, config.layout)
+
+
+def integrate_scan(maps, poses: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
+    """All particles' maps updated with one scan at ``poses``: ``(maps, dropped, status)``."""
+    return update_paged(
+        maps,
+        config.layout,
+        poses,
+        observation.ranges.astype(poses.dtype),
+        observation.valid,
+        scan_angles(observation, params).astype(poses.dtype),
+        params.laser_offset,
+        config.max_points,
+        params.usable_range,
+        config.window_range,
+        params.l_free,
+        params.l_occ,
+        params.l_max,
+    )
+
+
+def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observation: Scan, initial_pose: Array):
+    del key  # the initial state is deterministic; the key keeps the protocol's signature
+    dtype = params.beam_angles.dtype
+    n = config.num_particles
+    pose = jnp.asarray(initial_pose, dtype)
+    one = init_maps(1, config.layout)
+    one, _, status = integrate_scan(one, pose[None], observation, params, config)
+    tables = jnp.broadcast_to(one.tables, (n, one.tables.shape[1]))
+    maps = resample_maps(one._replace(tables=tables), jnp.arange(n), jnp.asarray(True))
+    sqrt_cov = jnp.diag(params.initial_std.astype(dtype))
+    return GridSlamState(
+        poses=jnp.broadcast_to(pose, (n, 3)),
+        pose_sqrt_covs=jnp.broadcast_to(sqrt_cov, (n, 3, 3)),
+        log_weights=jnp.full((n,), -jnp.log(jnp.asarray(n, dtype))),
+        cumulative_log_likelihood=jnp.zeros((n,), dtype),
+        maps=maps,
+        status=status,
+    )
+
+
+@partial(jax.jit, static_argnames=("config",))
+def init(
+    key: Array,
+    params: GridSlamParams,
+    config: GridSlamConfig,
+    observation: Scan,
+    initial_pose: Array,
+) -> GridSlamState:
+    """All particles at ``initial_pose`` sharing one map built from the first scan.
+
+    The pose factor starts at ``diag(params.initial_std)``. Jitted (one compilation
+    per config). If the first scan does not fit the layout, ``status`` says so and the
+    caller grows the layout (:func:`jaxslam.grid.paged.grow`) and calls again.
+    """
+    return _init(key, params, config, observation, initial_pose)
+
+
+def finish_step(
+    key: Array,
+    state: GridSlamState,
+    map_poses: Array,
+    next_poses: Array,
+    next_sqrt_covs: Array,
+    log_likelihoods: Array,
+    scores: Array,
+    pd_ok: Array,
+    observation: Scan,
+    params: GridSlamParams,
+    config: GridSlamConfig,
+) -> tuple[GridSlamState, GridSlamInfo]:
+    """Weights, map update at ``map_poses``, selective resampling (shared by filters)."""
+    log_weights = normalize_log_weights(state.log_weights + params.weight_gain * log_likelihoods)
+    cumulative = state.cumulative_log_likelihood + log_likelihoods
+    # A data dependency from every read of the maps (matching, likelihoods) to the
+    # map update, so that XLA orders the reads before the in-place write. (Float
+    # ``x * 0`` is not folded away, and the where keeps NaNs out.)
+    tie = jnp.sum(log_likelihoods) * 0.0 + jnp.sum(scores) * 0.0
+    tie = jnp.where(jnp.isfinite(tie), tie, 0.0)
+    maps, dropped, status = integrate_scan(state.maps, map_poses + tie, observation, params, config)
+    applied = status.code == 0
+    ess = effective_sample_size(log_weights)
+    ancestors, resampled, new_log_weights = selective_resample(
+        key, log_weights, params.resample_threshold, config.resampler
+    )
+    identity = jnp.arange(config.num_particles, dtype=ancestors.dtype)
+    ancestors = jnp.where(applied, ancestors, identity)
+    resampled = resampled & applied
+
+    def keep(new, old):
+        return jnp.where(applied, new, old)
+
+    new_state = GridSlamState(
+        poses=keep(next_poses[ancestors], state.poses),
+        pose_sqrt_covs=keep(next_sqrt_covs[ancestors], state.pose_sqrt_covs),
+        log_weights=keep(new_log_weights, state.log_weights),
+        cumulative_log_likelihood=keep(cumulative[ancestors], state.cumulative_log_likelihood),
+        maps=resample_maps(maps, ancestors, resampled),
+        status=status,
+    )
+    info = GridSlamInfo(
+        poses=map_poses,
+        log_weights=log_weights,
+        scores=scores,
+        log_likelihoods=log_likelihoods,
+        ancestors=ancestors,
+        resampled=resampled,
+        ess=ess,
+        dropped_points=dropped,
+        pd_ok=pd_ok,
+        status=status.code,
+    )
+    return new_state, info
+
+
+def guard(step_fn):
+    """``step_fn`` that passes the state through once a step was refused (status set)."""
+
+    def guarded(key, state: GridSlamState, control, observation, params, config):
+        def halted(key, state, control, observation, params):
+            shapes = jax.eval_shape(lambda *a: step_fn(*a, config), key, state, control, observation, params)[1]
+            zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+            return state, zeros._replace(status=state.status.code)
+
+        def live(key, state, control, observation, params):
+            return step_fn(key, state, control, observation, params, config)
+
+        return jax.lax.cond(state.status.code == 0, live, halted, key, state, control, observation, params)
+
+    guarded.__doc__ = step_fn.__doc__
+    guarded.__name__ = getattr(step_fn, "__name__", "step")
+    guarded.__wrapped__ = step_fn
+    return guarded
+
+
+def best_particle(state: GridSlamState) -> Array:
+    """Index of the particle with the largest accumulated log-likelihood."""
+    return jnp.argmax(state.cumulative_log_likelihood)
+
+
+def reset_status(state: GridSlamState) -> GridSlamState:
+    """The state with its map status cleared (after the host grew the maps)."""
+    return state._replace(status=ok_status())
+
+
+__all__ = [
+    "best_particle",
+    "finish_step",
+    "guard",
+    "init",
+    "integrate_scan",
+    "match_geometry",
+    "particle_reader",
+    "reset_status",
+    "scan_angles",
+    "score_model",
+    "usable_range",
+]

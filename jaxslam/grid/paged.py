@@ -1,0 +1,432 @@
+r"""Paged per-particle occupancy maps: tiles in one shared pool, copy on write.
+
+Cells are ``int8`` quantised log-odds as in :mod:`jaxslam.grid.map`. They live in
+square tiles of ``T x T`` cells (``T = 2**tile_bits``, 64 by default: 3.2 m at 5 cm)
+held in one pool ``(S, T*T)`` shared by all particles. Each particle has a page table
+``(TY * TX,)`` from tile coordinates to pool slots; the table covers the tile box
+``[table_x0, table_x0 + TX) x [table_y0, table_y0 + TY)`` in the map frame, whose
+cell ``(c, r)`` is the square ``[c r_s, (c+1) r_s) x [r r_s, (r+1) r_s)`` (``r_s``
+the resolution; negative coordinates are fine). A cell is read as
+
+.. math:: \mathrm{pool}\big[\mathrm{table}[t_y, t_x],\ (r \bmod T)\,T + (c \bmod T)\big],
+    \qquad t_x = \lfloor c / T \rfloor,\ t_y = \lfloor r / T \rfloor,
+
+with slot 0 a tile that is never written: unknown (0) everywhere, so unallocated
+tiles and tiles outside the table read as unknown.
+
+*Sharing.* ``refcount[s]`` counts the page-table entries (over all particles) that
+point to slot ``s``. Resampling gathers page tables, never cells, and recounts
+(a scatter-add over the tables, only at steps that resample). A write goes through
+:func:`plan_writes`: every tile a particle will write this step is *touched*; a
+touched tile that is unallocated gets a fresh slot (a copy of slot 0), one shared
+with other particles gets a private copy first (copy on write). When all holders
+of a shared slot write it in the same step, the first of them (lowest particle
+index) keeps the original and only the others copy. A slot whose count drops to 0
+is free: allocation takes the lowest free slots (``nonzero`` order), so the slots a
+run uses do not depend on how large the pool is, and a run that grows its pool
+gives the same maps as one that started with the larger pool. Freed slots are
+reclaimed by that same rule (no separate sweep); their old content is overwritten
+by the copy that fills them.
+
+*Growth.* The pool and the table have static shapes. When a step needs more free
+slots than the pool has, or touches a tile outside the table, the step is not
+applied: :class:`MapStatus` records why and what was wanted, the state is left as
+it was, and the host grows the pool (doubling) or the table (to cover the wanted
+box plus a margin) and runs the step again (:func:`grow`); each growth costs one
+recompilation.
+
+Cost: a write touches only the tiles under the scan; resampling copies page tables
+(``P x TY x TX`` int32) and no cells; memory is ``S x T^2`` bytes for the pool, so it
+grows with the area actually seen and with how far the particles' maps differ,
+not with particles times the box of the environment.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from jaxslam.grid.map import CELL_DTYPE
+
+PINNED = 1 << 30
+"""Reference count of slot 0 (the unknown tile): never freed, never written."""
+
+STATUS_OK = 0
+STATUS_POOL_FULL = 1
+STATUS_OUTSIDE_TABLE = 2
+
+
+@dataclass(frozen=True)
+class PagedLayout:
+    """Static geometry of paged maps: resolution, tile size, page-table box, pool size.
+
+    Attributes:
+        resolution: metres per cell.
+        tile_bits: tiles are ``2**tile_bits`` cells on a side.
+        table_x0, table_y0: tile coordinates of page-table entry ``(0, 0)``.
+        table_width, table_height: page-table size in tiles (``TX``, ``TY``).
+        slots: pool size in tiles, slot 0 (unknown) included.
+        origin_x, origin_y: world position (m) of the corner of cell ``(0, 0)``
+            (0 by default; any value shifts the whole cell lattice).
+    """
+
+    resolution: float = 0.05
+    tile_bits: int = 6
+    table_x0: int = 0
+    table_y0: int = 0
+    table_width: int = 1
+    table_height: int = 1
+    slots: int = 2
+    origin_x: float = 0.0
+    origin_y: float = 0.0
+
+    def __post_init__(self):
+        if not self.resolution > 0:
+            raise ValueError(f"resolution must be > 0, got {self.resolution}")
+        if not 2 <= self.tile_bits <= 10:
+            raise ValueError(f"tile_bits must be in 2..10, got {self.tile_bits}")
+        if self.table_width < 1 or self.table_height < 1:
+            raise ValueError("the page table needs at least one tile")
+        if self.slots < 2:
+            raise ValueError(f"the pool needs at least 2 slots, got {self.slots}")
+        if self.slots * self.tile_cells >= 2**31:
+            raise ValueError(f"a pool of {self.slots} tiles exceeds int32 cell indexing")
+
+    @property
+    def tile(self) -> int:
+        return 1 << self.tile_bits
+
+    @property
+    def tile_cells(self) -> int:
+        return self.tile * self.tile
+
+    @property
+    def tile_metres(self) -> float:
+        return self.tile * self.resolution
+
+    @property
+    def table_size(self) -> int:
+        return self.table_width * self.table_height
+
+    def pool_bytes(self) -> int:
+        return self.slots * self.tile_cells * np.dtype(np.int8).itemsize
+
+    @classmethod
+    def covering(
+        cls, xmin: float, ymin: float, xmax: float, ymax: float, resolution: float = 0.05, tile_bits: int = 6,
+        slots: int = 2, origin: tuple[float, float] = (0.0, 0.0),
+    ) -> PagedLayout:
+        """A table over the tiles that cover the box ``[xmin, xmax] x [ymin, ymax]`` (m)."""
+        tm = (1 << tile_bits) * resolution
+        x0, y0 = math.floor((xmin - origin[0]) / tm), math.floor((ymin - origin[1]) / tm)
+        x1, y1 = math.floor((xmax - origin[0]) / tm), math.floor((ymax - origin[1]) / tm)
+        return cls(float(resolution), tile_bits, x0, y0, x1 - x0 + 1, y1 - y0 + 1, int(slots), float(origin[0]),
+                   float(origin[1]))
+
+    def with_table(self, x0: int, y0: int, x1: int, y1: int) -> PagedLayout:
+        """The same layout with a table over tiles ``[x0, x1] x [y0, y1]`` (inclusive)."""
+        return replace(self, table_x0=int(x0), table_y0=int(y0), table_width=int(x1 - x0 + 1),
+                       table_height=int(y1 - y0 + 1))
+
+
+class PagedMaps(NamedTuple):
+    """The maps of all particles: the shared pool, page tables, reference counts."""
+
+    pool: Array  # (S, T*T) int8
+    tables: Array  # (P, TY*TX) int32 slot per tile (0: unknown)
+    refcount: Array  # (S,) int32
+
+
+class MapStatus(NamedTuple):
+    """Why the last step was not applied (``code != 0``) and what it needed."""
+
+    code: Array  # () int32: STATUS_OK / STATUS_POOL_FULL / STATUS_OUTSIDE_TABLE
+    slots_needed: Array  # () int32 new slots the step needed
+    tile_lo: Array  # (2,) int32 smallest touched tile (x, y)
+    tile_hi: Array  # (2,) int32 largest touched tile (x, y)
+
+
+def ok_status() -> MapStatus:
+    return MapStatus(jnp.int32(0), jnp.int32(0), jnp.zeros((2,), jnp.int32), jnp.zeros((2,), jnp.int32))
+
+
+def init_maps(num_particles: int, layout: PagedLayout) -> PagedMaps:
+    """Empty maps: every table entry unknown, every slot but 0 free."""
+    return PagedMaps(
+        pool=jnp.zeros((layout.slots, layout.tile_cells), CELL_DTYPE),
+        tables=jnp.zeros((num_particles, layout.table_size), jnp.int32),
+        refcount=jnp.zeros((layout.slots,), jnp.int32).at[0].set(PINNED),
+    )
+
+
+# ----------------------------------------------------------------------------- reads
+
+
+def table_entry(cols: Array, rows: Array, layout: PagedLayout) -> tuple[Array, Array]:
+    """Page-table entry of the tiles holding cells ``(cols, rows)`` and whether it exists."""
+    ix = (cols >> layout.tile_bits) - layout.table_x0
+    iy = (rows >> layout.tile_bits) - layout.table_y0
+    inside = (ix >= 0) & (ix < layout.table_width) & (iy >= 0) & (iy < layout.table_height)
+    return jnp.where(inside, iy * layout.table_width + ix, 0), inside
+
+
+def local_cell(cols: Array, rows: Array, layout: PagedLayout) -> Array:
+    """Index of cell ``(cols, rows)`` inside its tile."""
+    mask = layout.tile - 1
+    return ((rows & mask) << layout.tile_bits) | (cols & mask)
+
+
+def read_cells(pool: Array, table: Array, cols: Array, rows: Array, layout: PagedLayout) -> Array:
+    """Cells ``(cols, rows)`` (int32, any shape) of one particle's map; unknown is 0."""
+    entry, inside = table_entry(cols, rows, layout)
+    slot = jnp.where(inside, table[entry], 0)
+    return pool.reshape(-1)[slot * layout.tile_cells + local_cell(cols, rows, layout)]
+
+
+def reader(pool: Array, table: Array, layout: PagedLayout):
+    """``(cols, rows) -> cells`` for one particle (the score functions' cell reader)."""
+
+    def read(cols: Array, rows: Array) -> Array:
+        return read_cells(pool, table, cols, rows, layout)
+
+    return read
+
+
+# ----------------------------------------------------------------------------- writes
+
+
+class WritePlan(NamedTuple):
+    """Where one step's writes go: a window of tiles around each particle's sensor."""
+
+    window_x0: Array  # (P,) int32 tile x of window column 0
+    window_y0: Array  # (P,) int32
+    slots: Array  # (P, K) int32 slot of each window tile after copy on write (0: untouched)
+    maps: PagedMaps  # tables and refcounts after allocation; pool after the copies
+    status: MapStatus
+
+
+def window_side(usable_range: float, layout: PagedLayout) -> int:
+    """Tiles per side of the window that holds every cell of a scan (static)."""
+    reach = math.ceil((usable_range / layout.resolution + 2.0) / layout.tile)
+    return 2 * reach + 1
+
+
+def window_index(cols: Array, rows: Array, x0: Array, y0: Array, side: int, layout: PagedLayout) -> Array:
+    """Window entry of the tiles of cells ``(cols, rows)`` (``side * side`` if outside)."""
+    wx = (cols >> layout.tile_bits) - x0
+    wy = (rows >> layout.tile_bits) - y0
+    inside = (wx >= 0) & (wx < side) & (wy >= 0) & (wy < side)
+    return jnp.where(inside, wy * side + wx, side * side)
+
+
+def plan_writes(maps: PagedMaps, touched: Array, x0: Array, y0: Array, side: int, layout: PagedLayout) -> WritePlan:
+    """Allocate and copy the tiles that the particles will write (copy on write).
+
+    Args:
+        maps: current maps.
+        touched: ``(P, side*side)`` bool, the window tiles each particle writes.
+        x0, y0: ``(P,)`` tile coordinates of each particle's window corner.
+        side: window side (static).
+        layout: static layout.
+
+    Returns:
+        The plan; when ``plan.status.code != 0`` its ``maps`` are the input maps,
+        untouched, and nothing may be written.
+    """
+    num_particles, k = touched.shape
+    wx = jnp.arange(k, dtype=jnp.int32) % side
+    wy = jnp.arange(k, dtype=jnp.int32) // side
+    tx = x0[:, None] + wx[None, :]
+    ty = y0[:, None] + wy[None, :]
+    ix = tx - layout.table_x0
+    iy = ty - layout.table_y0
+    inside = (ix >= 0) & (ix < layout.table_width) & (iy >= 0) & (iy < layout.table_height)
+    entry = jnp.where(inside, iy * layout.table_width + ix, 0)
+    slot = jnp.where(inside, jnp.take_along_axis(maps.tables, entry, 1), 0)
+    outside = jnp.any(touched & ~inside)
+    big = jnp.int32(2**30)
+    tile_lo = jnp.stack([jnp.min(jnp.where(touched, tx, big)), jnp.min(jnp.where(touched, ty, big))])
+    tile_hi = jnp.stack([jnp.max(jnp.where(touched, tx, -big)), jnp.max(jnp.where(touched, ty, -big))])
+
+    # Copy on write. Holders of a shared slot that all write it: the first keeps it.
+    flat_touched = touched.reshape(-1)
+    flat_slot = slot.reshape(-1)
+    order = jnp.arange(flat_slot.shape[0], dtype=jnp.int32)
+    shared = flat_touched & (flat_slot != 0) & (maps.refcount[flat_slot] > 1)
+    writers = jnp.zeros_like(maps.refcount).at[flat_slot].add(shared.astype(jnp.int32))
+    first = jnp.full_like(maps.refcount, big).at[flat_slot].min(jnp.where(shared, order, big))
+    keep = shared & (writers[flat_slot] == maps.refcount[flat_slot]) & (first[flat_slot] == order)
+    need = flat_touched & ((flat_slot == 0) | shared) & ~keep
+    slots_needed = jnp.sum(need, dtype=jnp.int32)
+    free = maps.refcount == 0
+    pool_full = slots_needed > jnp.sum(free, dtype=jnp.int32)
+    code = jnp.where(outside, STATUS_OUTSIDE_TABLE, jnp.where(pool_full, STATUS_POOL_FULL, STATUS_OK))
+    status = MapStatus(code.astype(jnp.int32), slots_needed, tile_lo, tile_hi)
+
+    def allocate(maps: PagedMaps):
+        free_slots = jnp.nonzero(free, size=need.shape[0], fill_value=0)[0].astype(jnp.int32)
+        rank = jnp.cumsum(need.astype(jnp.int32)) - 1
+        new_slot = jnp.where(need, free_slots[jnp.clip(rank, 0, need.shape[0] - 1)], flat_slot)
+        # Copies in batches of 32 tiles, only as many batches as this step needs.
+        which = jnp.nonzero(need, size=need.shape[0], fill_value=0)[0]
+        src = flat_slot[which]
+        dst = jnp.where(jnp.arange(need.shape[0]) < slots_needed, new_slot[which], layout.slots)
+        batch = 32
+        pad = -(-need.shape[0] // batch) * batch - need.shape[0]
+        src = jnp.pad(src, (0, pad))
+        dst = jnp.pad(dst, (0, pad), constant_values=layout.slots)
+
+        def copy(i, pool):
+            s = jax.lax.dynamic_slice_in_dim(src, i * batch, batch)
+            d = jax.lax.dynamic_slice_in_dim(dst, i * batch, batch)
+            return pool.at[d].set(pool[s], mode="drop")
+
+        pool = jax.lax.fori_loop(0, (slots_needed + batch - 1) // batch, copy, maps.pool)
+        refcount = maps.refcount.at[jnp.where(need, flat_slot, layout.slots)].add(-1, mode="drop")
+        refcount = refcount.at[jnp.where(need, new_slot, layout.slots)].set(1, mode="drop")
+        refcount = refcount.at[0].set(PINNED)
+        new_slot = new_slot.reshape(num_particles, k)
+        rows = jnp.arange(num_particles)[:, None]
+        tables = maps.tables.at[rows, jnp.where(need.reshape(num_particles, k), entry, layout.table_size)].set(
+            new_slot, mode="drop"
+        )
+        return PagedMaps(pool, tables, refcount), jnp.where(touched, new_slot, 0)
+
+    def refuse(maps: PagedMaps):
+        return maps, jnp.zeros((num_particles, k), jnp.int32)
+
+    new_maps, window_slots = jax.lax.cond(code == STATUS_OK, allocate, refuse, maps)
+    return WritePlan(x0, y0, window_slots, new_maps, status)
+
+
+def resample_maps(maps: PagedMaps, ancestors: Array, resampled: Array) -> PagedMaps:
+    """Particle ``i`` takes the page table of ``ancestors[i]``; counts are redone.
+
+    Only page tables move; no cell is copied. Without resampling (``ancestors`` the
+    identity) the recount is skipped.
+    """
+    tables = maps.tables[ancestors]
+
+    def recount(_):
+        counts = jnp.zeros_like(maps.refcount).at[tables.reshape(-1)].add(1)
+        return counts.at[0].set(PINNED)
+
+    refcount = jax.lax.cond(resampled, recount, lambda _: maps.refcount, None)
+    return PagedMaps(maps.pool, tables, refcount)
+
+
+# ----------------------------------------------------------------------------- host side
+
+
+def grow(maps: PagedMaps, layout: PagedLayout, status: MapStatus, margin_tiles: int = 4) -> tuple[PagedMaps, PagedLayout]:
+    """Host: a larger pool and/or table for a step that was refused (see module docstring).
+
+    The pool doubles (or more, to fit the request with room to spare); the table grows
+    to the union of its box and the wanted tiles, plus ``margin_tiles`` and at least
+    half its size again on each side that grew. Cell contents and slot numbers are
+    unchanged, so the run continues exactly as one with the larger layout would.
+    """
+    code = int(status.code)
+    pool = np.asarray(maps.pool)
+    tables = np.asarray(maps.tables)
+    refcount = np.asarray(maps.refcount)
+    new = layout
+    if code == STATUS_POOL_FULL:
+        used = int(np.sum(refcount != 0))
+        slots = max(2 * layout.slots, used + 2 * int(status.slots_needed))
+        new = replace(layout, slots=slots)
+        pool = np.concatenate([pool, np.zeros((slots - layout.slots, pool.shape[1]), pool.dtype)])
+        refcount = np.concatenate([refcount, np.zeros((slots - layout.slots,), refcount.dtype)])
+    elif code == STATUS_OUTSIDE_TABLE:
+        lo = np.asarray(status.tile_lo)
+        hi = np.asarray(status.tile_hi)
+        x0, y0 = layout.table_x0, layout.table_y0
+        x1, y1 = x0 + layout.table_width - 1, y0 + layout.table_height - 1
+        gx = max(margin_tiles, layout.table_width // 2)
+        gy = max(margin_tiles, layout.table_height // 2)
+        nx0 = min(x0, int(lo[0]) - gx) if lo[0] < x0 else x0
+        ny0 = min(y0, int(lo[1]) - gy) if lo[1] < y0 else y0
+        nx1 = max(x1, int(hi[0]) + gx) if hi[0] > x1 else x1
+        ny1 = max(y1, int(hi[1]) + gy) if hi[1] > y1 else y1
+        new = layout.with_table(nx0, ny0, nx1, ny1)
+        grid = tables.reshape(tables.shape[0], layout.table_height, layout.table_width)
+        out = np.zeros((tables.shape[0], new.table_height, new.table_width), tables.dtype)
+        oy, ox = y0 - ny0, x0 - nx0
+        out[:, oy : oy + layout.table_height, ox : ox + layout.table_width] = grid
+        tables = out.reshape(tables.shape[0], -1)
+    else:
+        raise ValueError(f"nothing to grow for status {code}")
+    return PagedMaps(jnp.asarray(pool), jnp.asarray(tables), jnp.asarray(refcount)), new
+
+
+def stitch(pool, table, layout: PagedLayout) -> tuple[np.ndarray, tuple[float, float]]:
+    """Host: one particle's map as a dense ``(H, W)`` int8 array over its allocated tiles.
+
+    Returns:
+        ``(grid, (origin_x, origin_y))``: row 0 at ``origin_y``, rows grow with y;
+        a map with no tile yet gives one unknown tile at the table's corner.
+    """
+    pool = np.asarray(pool)
+    table = np.asarray(table).reshape(layout.table_height, layout.table_width)
+    t = layout.tile
+    ys, xs = np.nonzero(table)
+    if ys.size == 0:
+        ys = xs = np.zeros((1,), np.int64)
+    ty0, ty1, tx0, tx1 = ys.min(), ys.max(), xs.min(), xs.max()
+    sub = table[ty0 : ty1 + 1, tx0 : tx1 + 1]
+    tiles = pool[sub].reshape(sub.shape[0], sub.shape[1], t, t)  # slot 0 is all zeros
+    grid = tiles.transpose(0, 2, 1, 3).reshape(sub.shape[0] * t, sub.shape[1] * t)
+    origin = (
+        layout.origin_x + (layout.table_x0 + tx0) * layout.tile_metres,
+        layout.origin_y + (layout.table_y0 + ty0) * layout.tile_metres,
+    )
+    return grid, origin
+
+
+def pool_stats(maps: PagedMaps, layout: PagedLayout) -> dict[str, int | float]:
+    """Host: pool size, tiles in use, tiles per particle and tiles shared by several."""
+    tables = np.asarray(maps.tables)
+    refcount = np.asarray(maps.refcount)
+    used = refcount[1:] > 0
+    per_particle = np.count_nonzero(tables, axis=1)
+    return {
+        "pool_slots": int(layout.slots),
+        "pool_mb": layout.pool_bytes() / 1e6,
+        "tiles_used": int(np.count_nonzero(used)),
+        "tiles_shared": int(np.count_nonzero(refcount[1:] > 1)),
+        "tiles_per_particle_mean": float(per_particle.mean()) if per_particle.size else 0.0,
+        "tiles_per_particle_max": int(per_particle.max()) if per_particle.size else 0,
+        "table_tiles": int(layout.table_size),
+        "tile_cells": int(layout.tile),
+    }
+
+
+__all__ = [
+    "PINNED",
+    "STATUS_OK",
+    "STATUS_OUTSIDE_TABLE",
+    "STATUS_POOL_FULL",
+    "MapStatus",
+    "PagedLayout",
+    "PagedMaps",
+    "WritePlan",
+    "grow",
+    "init_maps",
+    "local_cell",
+    "ok_status",
+    "plan_writes",
+    "pool_stats",
+    "read_cells",
+    "reader",
+    "resample_maps",
+    "stitch",
+    "table_entry",
+    "window_index",
+    "window_side",
+]

@@ -1,0 +1,271 @@
+r"""Types of the grid SLAM filters: static config, traced params, state, info, inputs.
+
+Both filters (:mod:`jaxslam.grid.gmapping` and :mod:`jaxslam.grid.srupf`) hold, per
+particle, a pose, a lower pose factor (SRUPF-GM only; zeros for GMapping), a
+log-weight, GMapping's accumulated log-likelihood (to pick the best particle, as
+``weightSum``) and a paged ``int8`` map (:mod:`jaxslam.grid.paged`). One step
+consumes an odometry increment (control, :class:`Odometry`) and one laser scan
+(observation, :class:`Scan`); the shared parts of the step are in
+:mod:`jaxslam.grid.filter`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from jaxslam.grid.paged import MapStatus, PagedLayout, PagedMaps
+
+
+@dataclass(frozen=True)
+class GridSlamConfig:
+    """Static configuration (shapes and branches); hashable, closed over by ``jit``.
+
+    Attributes:
+        num_particles: particles ``P``.
+        layout: paged-map geometry (resolution, tile size, page table, pool size).
+        window_range: static bound (m) on the usable range, sizing the window of
+            tiles a scan can write (``params.usable_range`` is cropped to it).
+        num_beams: beams per scan ``B``.
+        max_points: ray-sample budget per scan (see :mod:`jaxslam.grid.update`).
+        match_stride: scan matching and weighting use beams ``0, s, 2s, ...``.
+        match_iterations: hill-climbing iterations (6 candidate poses each).
+        refine_steps: optax gradient steps after the search (0: none).
+        matcher: ``"hill"`` (GMapping), ``"ellipse"`` (SRUPF-GM), ``"gradient"``.
+        correction: SRUPF-GM only: ``"pc"`` (pose correction by the matcher) or
+            ``"npc"`` (the best propagated sigma point, eq. 10).
+        sampling: SRUPF-GM only: ``"prior"`` (draw after the odometry update, eq. 9,
+            and correct the draw) or ``"posterior"`` (Algorithm 2's final draw).
+        resampler: name of a :mod:`jaxslam.core.resampling` resampler.
+        score_kernel: ``"bilinear"``, ``"gaussian2"`` or ``"gaussian3"``
+            (:mod:`jaxslam.grid.score`).
+        free_check: scale the evidence of a beam by the freeness of the cell just
+            before its end point (GMapping's free-cell test).
+    """
+
+    num_particles: int
+    layout: PagedLayout
+    num_beams: int
+    max_points: int
+    match_stride: int = 1
+    match_iterations: int = 8
+    refine_steps: int = 0
+    matcher: str = "hill"
+    correction: str = "pc"
+    sampling: str = "prior"
+    resampler: str = "systematic"
+    score_kernel: str = "gaussian3"
+    free_check: bool = True
+    window_range: float = 20.0
+
+    def __post_init__(self):
+        choices = {
+            "matcher": ("hill", "ellipse", "gradient"),
+            "correction": ("pc", "npc"),
+            "sampling": ("prior", "posterior"),
+            "score_kernel": ("bilinear", "gaussian2", "gaussian3"),
+        }
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"GridSlamConfig.{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if self.num_particles < 1 or self.num_beams < 1 or self.max_points < 1 or self.match_stride < 1:
+            raise ValueError("num_particles, num_beams, max_points and match_stride must be >= 1")
+        if not self.window_range > 0:
+            raise ValueError(f"window_range must be > 0, got {self.window_range}")
+
+    @property
+    def match_beams(self) -> np.ndarray:
+        return np.arange(0, self.num_beams, self.match_stride)
+
+
+class GridSlamParams(NamedTuple):
+    """Traced parameters: a sweep over any of them never recompiles.
+
+    Sensor: ``beam_angles (B,)``, ``laser_offset (3,)``, ``usable_range`` (m; beams are
+    cropped here for the map and ignored beyond it for matching).
+    Map (quantised log-odds steps): ``l_free``, ``l_occ``, ``l_max`` (clamp),
+    ``occ_saturation`` (steps at which a cell scores 1), ``score_sigma`` (m, width of
+    the ``gaussian3`` kernel), ``log_odds_unit`` (natural log-odds per step, for
+    export).
+    Matching: ``linear_step``, ``angular_step`` (GMapping's lstep/astep),
+    ``ellipse_radius`` and ``ellipse_step`` (first step; both in standard
+    deviations of the prediction), ``ellipse_floor`` (m/rad added to the
+    ellipse), ``learning_rate`` (optax refinement, in basis units), ``min_score``
+    (below it the uncorrected pose is kept, GMapping's minimumScore, as a fraction
+    of the matched beams).
+    Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
+    ``weight_gain``, ``resample_threshold`` (ratio of N).
+    GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
+    SRUPF-GM: ``q_linear``, ``q_angular`` (std of the constant Q), ``q_linear_per_m``,
+    ``q_angular_per_rad``, ``q_angular_per_m`` (motion-proportional additions), ``ut_alpha``, ``ut_beta``,
+    ``ut_kappa``, ``match_noise (3,)`` (std of the corrected pose, added to eq. 12 so
+    that the downdate of eq. 16 leaves a positive definite factor; 0 gives the
+    paper's literal update), ``initial_std (3,)``.
+    """
+
+    beam_angles: Array
+    laser_offset: Array
+    usable_range: Array
+    l_free: Array
+    l_occ: Array
+    l_max: Array
+    occ_saturation: Array
+    score_sigma: Array
+    log_odds_unit: Array
+    linear_step: Array
+    angular_step: Array
+    ellipse_radius: Array
+    ellipse_step: Array
+    ellipse_floor: Array
+    learning_rate: Array
+    min_score: Array
+    likelihood_floor: Array
+    weight_gain: Array
+    resample_threshold: Array
+    srr: Array
+    srt: Array
+    str_: Array
+    stt: Array
+    q_linear: Array
+    q_angular: Array
+    q_linear_per_m: Array
+    q_angular_per_rad: Array
+    q_angular_per_m: Array
+    ut_alpha: Array
+    ut_beta: Array
+    ut_kappa: Array
+    match_noise: Array
+    initial_std: Array
+
+
+def default_params(
+    beam_angles,
+    laser_offset=(0.0, 0.0, 0.0),
+    *,
+    num_particles: int = 30,
+    dtype=jnp.float32,
+    **overrides,
+) -> GridSlamParams:
+    """Defaults tuned on the raw Intel log (see ``benchmarks/``).
+
+    GMapping's defaults where they have a counterpart: ``srr=0.1, srt=0.2,
+    str=0.1, stt=0.2``, ``lstep = astep = 0.05``, ``resampleThreshold = 0.5``.
+    GMapping normalises its weights with ``gain = 1 / (ogain N)``, ``ogain = 3``,
+    which flattens them as ``N`` grows (at 300-1000 particles the filter no longer
+    selects); the default here is that gain at GMapping's default ``N = 30``,
+    ``1/90``, for every ``N``. ``num_particles`` is kept for callers that want
+    the GMapping rule: pass ``weight_gain=1 / (3 * N)``.
+    """
+    values = {
+        "beam_angles": np.asarray(beam_angles),
+        "laser_offset": np.asarray(laser_offset),
+        "usable_range": 20.0,
+        "l_free": -1.0,
+        "l_occ": 4.0,
+        "l_max": 60.0,
+        "occ_saturation": 8.0,
+        "score_sigma": 0.05,
+        "log_odds_unit": 0.2,
+        "linear_step": 0.05,
+        "angular_step": 0.05,
+        "ellipse_radius": 5.0,
+        "ellipse_step": 1.0,
+        "ellipse_floor": np.array([0.01, 0.01, 0.005]),
+        "learning_rate": 0.3,
+        "min_score": 0.15,
+        "likelihood_floor": np.exp(-4.0),
+        "weight_gain": None,
+        "resample_threshold": 0.5,
+        "srr": 0.1,
+        "srt": 0.2,
+        "str_": 0.1,
+        "stt": 0.2,
+        "q_linear": 0.02,
+        "q_angular": 0.02,
+        "q_linear_per_m": 0.06,
+        "q_angular_per_rad": 0.06,
+        "q_angular_per_m": 0.03,
+        "ut_alpha": 1.0,
+        "ut_beta": 2.0,
+        "ut_kappa": 0.0,
+        "match_noise": np.array([0.02, 0.02, 0.01]),
+        "initial_std": np.array([1e-3, 1e-3, 1e-3]),
+    }
+    unknown = set(overrides) - set(values)
+    if unknown:
+        raise ValueError(f"unknown grid SLAM parameters: {sorted(unknown)}")
+    values.update(overrides)
+    if values["weight_gain"] is None:
+        values["weight_gain"] = 1.0 / 90.0
+    return GridSlamParams(**{k: jnp.asarray(v, dtype) for k, v in values.items()})
+
+
+class GridSlamState(NamedTuple):
+    """Filter state; ``maps.pool`` is the large buffer (donate it).
+
+    ``status`` is non-zero after a step that could not be applied because the maps
+    need a larger pool or page table (:mod:`jaxslam.grid.paged`); every later step is
+    skipped until the host grows the maps and runs that step again.
+    """
+
+    poses: Array  # (P, 3)
+    pose_sqrt_covs: Array  # (P, 3, 3) lower
+    log_weights: Array  # (P,) normalised
+    cumulative_log_likelihood: Array  # (P,) GMapping's weightSum
+    maps: PagedMaps
+    status: MapStatus
+
+
+class GridSlamInfo(NamedTuple):
+    """Per-step diagnostics (stacked over time by ``run``)."""
+
+    poses: Array  # (P, 3) corrected poses the maps were updated at (before resampling)
+    log_weights: Array  # (P,) normalised, before resampling
+    scores: Array  # (P,) match score at the corrected pose (fraction of matched beams)
+    log_likelihoods: Array  # (P,)
+    ancestors: Array  # (P,) int32
+    resampled: Array  # () bool
+    ess: Array  # ()
+    dropped_points: Array  # () int32 ray samples past the budget
+    pd_ok: Array  # (P,) bool: SRUPF downdate kept the factor PD (True for GMapping)
+    status: Array  # () int32 map status of this step (0: applied; see jaxslam.grid.paged)
+
+
+class Odometry(NamedTuple):
+    """Odometry between two keyframes: the increment ``(3,)`` in the frame of the first
+    and the number of laser scans it spans. GMapping draws its motion noise once per
+    scan; over ``n`` similar sub-steps the noise standard deviation of the whole
+    increment is ``1/sqrt(n)`` of a single draw on it."""
+
+    increment: Array
+    substeps: Array | float = 1.0
+
+
+def as_odometry(control) -> Odometry:
+    """Accept a bare ``(3,)`` increment as one sub-step."""
+    return control if isinstance(control, Odometry) else Odometry(control, 1.0)
+
+
+class Scan(NamedTuple):
+    """One laser scan: ranges ``(B,)``, the mask of usable hits ``(B,)`` and a shift
+    of all beam angles (interleaved start angles of some ROBOTLASER1 logs)."""
+
+    ranges: Array
+    valid: Array
+    angle_offset: Array | float = 0.0
+
+
+__all__ = [
+    "GridSlamConfig",
+    "GridSlamInfo",
+    "GridSlamParams",
+    "GridSlamState",
+    "Odometry",
+    "Scan",
+    "as_odometry",
+    "default_params",
+]
