@@ -306,7 +306,7 @@ def _open_viz(rerun_path, rerun_spawn, name):
 
 
 def _grid_live_log(viz, log, max_steps, keyframes, chunk):
-    """Follow a grid run: the same keyframes and grid as run_grid_slam chooses."""
+    """Follow a grid run: the same keyframes as run_grid_slam chooses."""
     from jaxslam.datasets.carmen import select_keyframes
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.viz.rerun_log import GridLiveLog
@@ -314,8 +314,7 @@ def _grid_live_log(viz, log, max_steps, keyframes, chunk):
     name = grid_experiment._dataset_name(log)
     rule = grid_experiment.keyframe_rule(name, *((keyframes or {}).get(k) for k in ("linear", "angular", "temporal")))
     chosen = select_keyframes(log.odom_poses, *rule, times=log.scan_times)[:max_steps]
-    spec = grid_experiment.grid_spec_for(log, chosen, name, 0.05, 20.0)
-    return GridLiveLog(viz, log, chosen, spec.resolution, (spec.origin_x, spec.origin_y), every=min(chunk or 25, 25))
+    return GridLiveLog(viz, log, chosen, every=min(chunk or 25, 25))
 
 
 # --------------------------------------------------------------------------- ROS bags

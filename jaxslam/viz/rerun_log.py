@@ -31,8 +31,6 @@ from typing import Any
 import numpy as np
 
 INSTALL_HINT = 'pip install "jaxslam[viz]"'
-GRID_OUTPUTS = ("ancestors", "best_score", "dropped_points", "ess", "mean_score", "pd_ok_fraction", "poses",
-                "resampled")  # run_grid_slam's per-step summary, in JAX's (sorted) dict-leaf order
 
 
 def require_rerun():
@@ -174,72 +172,84 @@ class RerunLog:
         self.stream.disconnect()
 
 
+def _summary_structure():
+    """The pytree structure of a grid run's per-step outputs
+    (:func:`jaxslam.grid.driver.summarise`), to name the leaves a checkpoint receives."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxslam.grid.driver import summarise
+    from jaxslam.grid.types import GridSlamInfo
+
+    dummy = GridSlamInfo(*([jnp.zeros((1,))] * len(GridSlamInfo._fields)))
+    return jax.tree_util.tree_structure(summarise(dummy))
+
+
 class GridLiveLog:
     """Follows a grid run chunk by chunk (through ``run_grid_slam``'s ``checkpoint`` slot).
 
     At the end of each chunk of ``every`` keyframes it logs, for every keyframe of
     the chunk, the particles, ESS and resampling and the scan at the best lineage's
-    pose, then the best particle's path and map. It writes no checkpoint file.
+    pose, then the best particle's path and map. It writes no checkpoint file. The
+    laser mount and the log-odds unit come from the run's parameters (the second half
+    of the carry), the map layout from ``static["layout"]`` (set by
+    :func:`jaxslam.grid.driver.run_filter` before each stretch of the run).
 
     Args:
         viz: the :class:`RerunLog`.
         log: the :class:`CarmenLog` being run (scans, stamps, beam angles).
         keyframes: the run's keyframe indices into the scans.
-        resolution, origin: the run's grid.
         every: keyframes per chunk (map updates).
-
-    The laser mount and the log-odds unit are read from the run's parameters (the
-    second half of the carry).
     """
 
     resume = False
 
-    def __init__(self, viz: RerunLog, log, keyframes, resolution, origin, every=25):
+    def __init__(self, viz: RerunLog, log, keyframes, every=25):
         self.viz = viz
         self.log = log
         self.keyframes = np.asarray(keyframes)
-        self.resolution = float(resolution)
-        self.origin = origin
         self.every = int(every)
+        self.static: dict[str, Any] = {}
         self._logged = 0
         self._first = True
+        self._structure = _summary_structure()
 
     def due(self, done: int) -> bool:
         return True
 
-    def _scan_at(self, step_scan: int, pose) -> None:
+    def _scan_at(self, scan: int, pose, laser_offset) -> None:
         log = self.log
-        ranges = np.asarray(log.ranges[step_scan], np.float64)
-        self.viz.scan(pose, self.laser_offset, log.beam_angles()[step_scan], ranges, log.valid[step_scan])
+        self.viz.scan(pose, laser_offset, log.beam_angles()[scan], np.asarray(log.ranges[scan], np.float64),
+                      log.valid[scan])
 
     def save(self, carry, done: int, leaves: list) -> None:
-        from jaxslam.grid.common import best_trajectory
+        import jax
+
+        from jaxslam.grid.experiment import best_trajectory
+        from jaxslam.grid.paged import PagedLayout, stitch
 
         state, params = carry
-        self.laser_offset = np.asarray(params.laser_offset, np.float64)
+        laser_offset = np.asarray(params.laser_offset, np.float64)
         unit = float(params.log_odds_unit)
         viz, kf, times = self.viz, self.keyframes, np.asarray(self.log.scan_times)
         odom0 = np.asarray(self.log.odom_poses[kf[0]], np.float64)
         if self._first:
             self._first = False
             viz.at(int(kf[0]), float(times[kf[0]]))
-            self._scan_at(int(kf[0]), odom0)
-        outputs = dict(zip(GRID_OUTPUTS, leaves, strict=True)) if len(leaves) == len(GRID_OUTPUTS) else None
+            self._scan_at(int(kf[0]), odom0, laser_offset)
+        outputs = jax.tree_util.tree_unflatten(self._structure, [np.asarray(leaf) for leaf in leaves])
         best = int(np.argmax(np.asarray(state.cumulative_log_likelihood)))
-        if outputs is not None:
-            poses = np.asarray(outputs["poses"])
-            path = best_trajectory(poses, np.asarray(outputs["ancestors"]), best)
-            path = np.concatenate([odom0[None], np.asarray(path, np.float64)], 0)
-            for step in range(self._logged, int(done)):
-                scan = int(kf[step + 1])
-                viz.at(scan, float(times[scan]))
-                viz.particles(poses[step])
-                viz.health(float(np.asarray(outputs["ess"])[step]), bool(np.asarray(outputs["resampled"])[step]))
-                self._scan_at(scan, path[step + 1])
-            viz.trajectory(path[: int(done) + 1])
-        else:
-            scan = int(kf[int(done)])
+        poses = outputs["poses"]
+        path = best_trajectory(poses, outputs["ancestors"], best)
+        path = np.concatenate([odom0[None], np.asarray(path, np.float64)], 0)
+        for step in range(self._logged, int(done)):
+            scan = int(kf[step + 1])
             viz.at(scan, float(times[scan]))
-            viz.particles(np.asarray(state.poses))
-        viz.grid_map(np.asarray(state.grids[best]).astype(np.float32) * unit, self.resolution, self.origin)
+            viz.particles(poses[step])
+            viz.health(float(outputs["ess"][step]), bool(outputs["resampled"][step]))
+            self._scan_at(scan, path[step + 1], laser_offset)
+        viz.trajectory(path[: int(done) + 1])
+        layout = PagedLayout(**self.static["layout"])
+        cells, origin = stitch(state.maps.pool, state.maps.tables[best], layout)
+        viz.grid_map(cells.astype(np.float32) * unit, layout.resolution, origin)
         self._logged = int(done)

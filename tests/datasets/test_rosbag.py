@@ -82,8 +82,8 @@ GRID_OPTIONS = dict(particles=4, seed=3, max_keyframes=6, progress=False)
 def reference(intel):
     from jaxslam.grid.experiment import run_grid_slam
 
-    # Named "intel" (from its path), the run takes Intel's map box and keyframe rule;
-    # so do the runs on the bags below, whose files are named intel.*.
+    # Named "intel" (from its path), the run takes Intel's keyframe rule; so do the
+    # runs on the bags below, whose files are named intel.*.
     return run_grid_slam(intel, **GRID_OPTIONS)
 
 
