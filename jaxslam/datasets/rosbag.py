@@ -76,6 +76,7 @@ __all__ = [
     "ODOMETRY",
     "TF_MESSAGE",
     "inspect_rosbag",
+    "interpolate_odometry",
     "is_rosbag",
     "load_rosbag",
     "quaternion_yaw",
@@ -407,26 +408,42 @@ def _mount(path, static, base, laser, max_tilt):
     return np.array([tx, ty, yaw], dtype=np.float64), cos_tilt < 0.0
 
 
-def _interpolate(path, odom_ns, odom_xyt, scan_ns, collector):
-    """Odometry at each scan stamp; ``(poses, placed mask)``."""
-    order = np.argsort(odom_ns, kind="stable")
-    collector.count("odom_backwards_timestamps", int(np.sum(np.diff(odom_ns) < 0)))
-    times = odom_ns[order]
-    poses = odom_xyt[order]
-    inside = (scan_ns >= times[0]) & (scan_ns <= times[-1])
-    slot = np.clip(np.searchsorted(times, scan_ns, side="right") - 1, 0, times.shape[0] - 1)
+def interpolate_odometry(times, poses, query) -> tuple[np.ndarray, np.ndarray]:
+    """Odometry ``poses (N, 3)`` at sorted ``times (N,)`` interpolated to ``query (M,)``.
+
+    ``x``, ``y`` linearly and the heading along the shorter arc, between the last
+    message at or before the query and the next; a query equal to a message's time
+    takes its pose unchanged. Returns ``(poses (M, 3), inside (M,))``; ``inside`` is
+    False for queries outside ``[times[0], times[-1]]`` (their poses are clamped).
+    Times may be integers (ns) or floats (s).
+    """
+    times = np.asarray(times)
+    poses = np.asarray(poses, np.float64).reshape(-1, 3)
+    query = np.asarray(query)
+    inside = (query >= times[0]) & (query <= times[-1])
+    slot = np.clip(np.searchsorted(times, query, side="right") - 1, 0, times.shape[0] - 1)
     after = np.minimum(slot + 1, times.shape[0] - 1)
     span = (times[after] - times[slot]).astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        alpha = np.where(span > 0, (scan_ns - times[slot]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
+    elapsed = (query - times[slot]).astype(np.float64)
+    alpha = np.where(span > 0, elapsed / np.where(span > 0, span, 1.0), 0.0)
+    alpha = np.clip(alpha, 0.0, 1.0)
     start, end = poses[slot], poses[after]
-    turn = end[:, 2] - start[:, 2]
-    turn = (turn + np.pi) % (2.0 * np.pi) - np.pi
+    turn = (end[:, 2] - start[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
     out = np.empty_like(start)
     out[:, :2] = start[:, :2] + alpha[:, None] * (end[:, :2] - start[:, :2])
     heading = start[:, 2] + alpha * turn
     heading = np.where(heading > np.pi, heading - 2.0 * np.pi, heading)
     out[:, 2] = np.where(heading < -np.pi, heading + 2.0 * np.pi, heading)
+    return out, inside
+
+
+def _interpolate(path, odom_ns, odom_xyt, scan_ns, collector):
+    """Odometry at each scan stamp; ``(poses, placed mask, sorted stamps, sorted poses)``."""
+    order = np.argsort(odom_ns, kind="stable")
+    collector.count("odom_backwards_timestamps", int(np.sum(np.diff(odom_ns) < 0)))
+    times = odom_ns[order]
+    poses = odom_xyt[order]
+    out, inside = interpolate_odometry(times, poses, scan_ns)
     return out, inside, times, poses
 
 

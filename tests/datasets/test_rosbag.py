@@ -3,15 +3,13 @@ bit for bit (arrays, then a grid SLAM run), and every kind of bad bag."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from jaxslam.datasets.carmen import load_dataset_log
-from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
+from jaxslam.datasets.paths import DataFormatError
 from jaxslam.datasets.rosbag import (
     LASER_SCAN,
     ODOMETRY,
@@ -25,27 +23,16 @@ from jaxslam.datasets.rosbag import (
     write_rosbag,
 )
 
-SEGMENT = 300  # Intel scans written to the bags (keeps the test fast)
+from tests.conftest import INTEL_GRID_OPTIONS as GRID_OPTIONS
+from tests.conftest import INTEL_SEGMENT as SEGMENT
+
 FIELDS = ("scan_times", "ranges", "valid", "max_range_mask", "angles", "angle_offsets", "odom_poses",
           "laser_offset")
 
 
-def _intel_segment():
-    try:
-        log = load_dataset_log("intel")
-    except DatasetNotFoundError as error:
-        pytest.skip(str(error))
-    changes = {}
-    for field in dataclasses.fields(log):
-        value = getattr(log, field.name)
-        if isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == log.num_scans:
-            changes[field.name] = value[:SEGMENT]
-    return dataclasses.replace(log, **changes)
-
-
 @pytest.fixture(scope="module")
-def intel():
-    return _intel_segment()
+def intel(intel_segment):
+    return intel_segment
 
 
 @pytest.fixture(scope="module")
@@ -75,16 +62,9 @@ def test_bag_arrays_equal_carmen(intel, bags, kind):
     assert log.params["odom_topic"] == ("/tf" if "tf" in kind else "/odom")
 
 
-GRID_OPTIONS = dict(particles=4, seed=3, max_keyframes=6, progress=False)
-
-
 @pytest.fixture(scope="module")
-def reference(intel):
-    from jaxslam.grid.experiment import run_grid_slam
-
-    # Named "intel" (from its path), the run takes Intel's keyframe rule; so do the
-    # runs on the bags below, whose files are named intel.*.
-    return run_grid_slam(intel, **GRID_OPTIONS)
+def reference(intel_grid_reference):
+    return intel_grid_reference
 
 
 @pytest.mark.slow  # a third compile; the ROS 1 bag runs in the default suite (below) through the CLI
