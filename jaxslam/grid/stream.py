@@ -9,11 +9,12 @@ taken apart. For each scan it
 2. decides whether the scan is a keyframe with the batch rule
    (:func:`jaxslam.datasets.carmen.select_keyframes`: GMapping's linear, angular and
    temporal thresholds on accumulated odometric motion);
-3. for a keyframe, runs one filter step: the same jitted chunk runner as the batch
-   run (:func:`jaxslam.grid.driver.chunk_runner`), on a chunk of one keyframe, with
-   the same per-keyframe keys (``jax.random.split(PRNGKey(seed), n)[k]`` does not
-   depend on ``n``). The runner compiles once; a recompilation happens only when the
-   paged maps or the ray budget (``max_points``) must grow, as in the batch run.
+3. for a keyframe, runs one filter step: the filter module's ``step`` (the batch
+   run's, :func:`jaxslam.grid.driver.run_filter`) jitted alone with the batch run's
+   per-step summary (:func:`step_runner`), with the same per-keyframe keys
+   (``jax.random.split(PRNGKey(seed), n)[k]`` does not depend on ``n``). It compiles
+   once; a recompilation happens only when the paged maps or the ray budget
+   (``max_points``) must grow, as in the batch run.
 
 Same inputs, same result: feeding a log scan by scan gives the batch run's keyframes,
 keyframe poses, trajectory and map bit for bit (``tests/grid/test_stream.py``). The
@@ -33,6 +34,7 @@ Example::
 
 from __future__ import annotations
 
+import functools
 import time
 from types import SimpleNamespace
 from typing import Any
@@ -49,7 +51,20 @@ from jaxslam.grid.paged import stitch
 from jaxslam.grid.types import GridSlamParams, Odometry, Scan, default_params
 from jaxslam.grid.update import required_points
 
-__all__ = ["StreamingGridSlam"]
+__all__ = ["StreamingGridSlam", "step_runner"]
+
+
+@functools.lru_cache(maxsize=16)
+def step_runner(step_fn, config):
+    """One jitted filter step with the batch run's per-step summary
+    (:func:`jaxslam.grid.driver.summarise`); the carry ``(state, params)`` is donated."""
+
+    def one(carry, key, control, observation):
+        state, params = carry
+        state, info = step_fn(key, state, control, observation, params, config)
+        return (state, params), driver.summarise(info)
+
+    return jax.jit(one, donate_argnums=(0,))
 
 
 def _budget(need: int, worst: int) -> int:
@@ -270,22 +285,23 @@ class StreamingGridSlam:
             self.config = dataclasses.replace(self.config, max_points=budget)
             self.counts["recompilations"] += 1
         step = len(self.keyframes) - 1
-        xs = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf)[None], (self._step_keys(step), control, scan))
+        key = self._step_keys(step)
         while True:
-            runner = driver.chunk_runner(self.module.step, self.config)
+            runner = step_runner(self.module.step, self.config)
             self.configs_used.add(self.config)
             # The runner donates its carry: keep what it returns.
-            (self.state, self.params), ys = runner((self.state, self.params), xs, jnp.ones((1,), bool))
-            if int(ys["status"][0]) == 0:
+            (self.state, self.params), ys = runner((self.state, self.params), key, control, scan)
+            if int(ys["status"]) == 0:
                 break
             # The maps are full: grow them (one recompilation) and run the step again.
             self.state, layout = driver._grown(self.state, self.config.layout, self.stats, step, False)
             self.config = dataclasses.replace(self.config, layout=layout)
             self.counts["recompilations"] += 1
-        self._step_poses.append(np.asarray(ys["poses"][0]))
-        self._step_ancestors.append(np.asarray(ys["ancestors"][0]))
+        ys = jax.device_get(ys)
+        self._step_poses.append(ys["poses"])
+        self._step_ancestors.append(ys["ancestors"])
         for name in self.info:
-            self.info[name].append(np.asarray(ys[name][0]))
+            self.info[name].append(ys[name])
 
     # ------------------------------------------------------------------ output
 
