@@ -150,6 +150,8 @@ def cmd_datasets(args) -> int:
     if getattr(args, "inspect", None) is not None:
         from jaxslam.datasets.rosbag import inspect_rosbag
 
+        if not args.inspect.exists():
+            raise CliError(f"--inspect: {str(args.inspect)!r} does not exist")
         rows = inspect_rosbag(args.inspect)
         width = max([len(r["topic"]) for r in rows] + [5])
         twidth = max([len(r["type"]) for r in rows] + [4])

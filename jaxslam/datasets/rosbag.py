@@ -478,6 +478,12 @@ def load_rosbag(
         max_backstep: scan stamps may go back by up to this many seconds (counted).
         max_tilt: largest tilt (rad) of the laser against the base frame.
 
+    Returns:
+        A :class:`CarmenLog` with ``message="LaserScan"``; ``scan_lines`` holds each
+        scan's message index on the scan topic (0-based, as in the error messages),
+        ``logger_times`` the bag's record times, ``laser_poses`` is None, ``params``
+        names the topics and frames used, ``stats`` / ``problems`` the recoveries.
+
     Raises:
         DataFormatError: a bad bag, naming the bag, topic and message.
         FileNotFoundError: ``path`` does not exist.

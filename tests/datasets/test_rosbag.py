@@ -138,6 +138,9 @@ def test_cli_inspect_and_bag_errors(bags, tmp_path, capsys):
                                                     "/laser")
     assert "apply to ROS bags only" in fails(*run, "--dataset", "sim-laser", "--scan-topic", "/scan")
     assert "ROS bag" in fails(*run, "--dataset", str(tmp_path / "nothing.bag"))
+    assert "does not exist" in fails("datasets", "--inspect", str(tmp_path / "nothing.bag"))
+    (tmp_path / "text.bag").write_text("not a bag")
+    assert "cannot read the bag" in fails("datasets", "--inspect", str(tmp_path / "text.bag"))
 
 
 def test_inspect_lists_topics(bags):
