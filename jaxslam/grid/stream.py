@@ -34,6 +34,7 @@ Example::
 
 from __future__ import annotations
 
+import bisect
 import functools
 import time
 from types import SimpleNamespace
@@ -163,7 +164,7 @@ class StreamingGridSlam:
         pose = np.asarray(pose, np.float64).reshape(3)
         if self._odom_times and stamp < self._odom_times[-1]:
             self.counts["odometry_out_of_order"] += 1
-            at = int(np.searchsorted(self._odom_times, stamp, side="right"))
+            at = bisect.bisect_right(self._odom_times, stamp)
             self._odom_times.insert(at, float(stamp))
             self._odom_poses.insert(at, pose)
         else:
@@ -202,7 +203,10 @@ class StreamingGridSlam:
             if stamp < self._odom_times[0]:
                 self.counts["scans_before_odometry"] += 1
                 continue
-            pose, _ = interpolate_odometry(np.asarray(self._odom_times), np.asarray(self._odom_poses), [stamp])
+            # The two odometry messages around the stamp (O(log n) per scan on long runs).
+            at = max(bisect.bisect_right(self._odom_times, stamp) - 1, 0)
+            pose, _ = interpolate_odometry(np.asarray(self._odom_times[at : at + 2]),
+                                           np.asarray(self._odom_poses[at : at + 2]), [stamp])
             flags.append(self._process(stamp, ranges, valid, offset, pose[0]))
         return flags
 
