@@ -25,6 +25,8 @@ EPILOG = """examples:
   jaxslam run --dataset intel --algorithm srupf-gm --particles 30 --out runs/intel
   jaxslam evaluate --relations intel --trajectory runs/intel/trajectory.tum
   jaxslam datasets
+  jaxslam datasets --inspect robot.bag            topics, types, counts and rates of a ROS bag
+  jaxslam run --dataset robot.bag --scan-topic /scan --odom-topic /odom --out runs/robot
   jaxslam plot runs/intel
 """
 
@@ -79,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     run.add_argument("--dataset", default=None,
-                     help="dataset name (see `jaxslam datasets`) or a path to a CARMEN log; "
+                     help="dataset name (see `jaxslam datasets`), a path to a CARMEN log or to a ROS bag; "
                           "default: the built-in simulator that suits --algorithm")
     run.add_argument("--algorithm", choices=sorted(ALGORITHMS), default=None,
                      help="filter; default erb-upf for landmark data, srupf-gm for laser data")
@@ -111,6 +113,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="steps per compiled chunk (progress-bar granularity)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    run.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
+                     help="log the run to a Rerun recording as it goes: map, particles, best path, scans, ESS "
+                          '(needs pip install "jaxslam[viz]")')
+    run.add_argument("--rerun-spawn", action="store_true", help="... and/or open the Rerun viewer live")
+    bag = run.add_argument_group("ROS bags (--dataset path/to/bag: a ROS 1 .bag, a ROS 2 bag folder, .mcap or .db3)")
+    bag.add_argument("--scan-topic", default=None, help="sensor_msgs/LaserScan topic; default: the only one")
+    bag.add_argument("--odom-topic", default=None,
+                     help="nav_msgs/Odometry topic, or /tf for the odom -> base transform; default: the only "
+                          "Odometry topic, else /tf")
+    bag.add_argument("--base-frame", default=None, help="robot base frame (default: the odometry's child frame)")
+    bag.add_argument("--laser-mount", type=float, nargs=3, default=None, metavar=("X", "Y", "THETA"),
+                     help="laser pose in the base frame (m, m, rad); default: from /tf_static")
 
     ev = sub.add_parser("evaluate", help="score a TUM trajectory (relations metric or GPS error)",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -121,15 +135,32 @@ def build_parser() -> argparse.ArgumentParser:
     target.add_argument("--gps", help="dataset whose GPS to score against (victoria-park)")
     ev.add_argument("--out", type=Path, default=None, help="also write the scores as JSON here")
 
-    sub.add_parser("datasets", help="list known datasets, whether they are found, and where")
+    ds = sub.add_parser("datasets", help="list known datasets, whether they are found, and where")
+    ds.add_argument("--inspect", type=Path, default=None, metavar="BAG",
+                    help="list the topics of a ROS bag: types, message counts, rates")
 
     pl = sub.add_parser("plot", help="re-draw the figures of an output folder from its files")
     pl.add_argument("folder", type=Path, help="output folder written by `jaxslam run`")
     return parser
 
 
-def cmd_datasets(_args) -> int:
+def cmd_datasets(args) -> int:
     from jaxslam.datasets.paths import ENV_VAR
+
+    if getattr(args, "inspect", None) is not None:
+        from jaxslam.datasets.rosbag import inspect_rosbag
+
+        if not args.inspect.exists():
+            raise CliError(f"--inspect: {str(args.inspect)!r} does not exist")
+        rows = inspect_rosbag(args.inspect)
+        width = max([len(r["topic"]) for r in rows] + [5])
+        twidth = max([len(r["type"]) for r in rows] + [4])
+        print(f"{'topic':<{width}}  {'type':<{twidth}}  {'count':>7}  {'rate_hz':>8}  first_s .. last_s (bag time)")
+        for r in rows:
+            rate = f"{r['rate_hz']:8.2f}" if r["rate_hz"] is not None else f"{'-':>8}"
+            span = f"{r['first_s']:.3f} .. {r['last_s']:.3f}" if r["count"] else "-"
+            print(f"{r['topic']:<{width}}  {r['type']:<{twidth}}  {r['count']:>7}  {rate}  {span}")
+        return 0
     from jaxslam.datasets.registry import describe, roots_text
 
     rows = describe()

@@ -48,9 +48,10 @@ def resolve_dataset(dataset: str | None, algorithm: str | None) -> tuple[Dataset
         kind = _kind_of(algorithm) if algorithm else "landmark"
         return lookup("sim-landmarks" if kind == "landmark" else "sim-laser"), None, kind
     candidate = Path(dataset).expanduser()
-    if candidate.suffix in {".clf", ".log", ".gz", ".carmen"} or candidate.exists():
+    if candidate.suffix in {".clf", ".log", ".gz", ".carmen", ".bag", ".mcap", ".db3"} or candidate.exists():
         if not candidate.exists():
-            raise DatasetNotFoundError(f"CARMEN log {str(candidate)!r} does not exist")
+            what = "ROS bag" if candidate.suffix in {".bag", ".mcap", ".db3"} else "CARMEN log"
+            raise DatasetNotFoundError(f"{what} {str(candidate)!r} does not exist")
         return None, candidate, "laser"
     try:
         info = lookup(dataset)
@@ -147,15 +148,19 @@ def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
 
 
 def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
-                 checkpoint=None):
+                 checkpoint=None, viz=None):
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.trajectory_io import write_tum
 
     sequence = load_landmark_sequence(info, max_steps, seed)
+    live = {} if viz is None else {"callback": viz.landmark_callback(np.asarray(sequence.times))}
     result = run_landmark_slam(
         sequence, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
-        progress=progress, chunk=chunk or 512, dtype=dtype, checkpoint=checkpoint,
+        progress=progress, chunk=min(chunk or 512, 50) if viz is not None else chunk or 512, dtype=dtype,
+        checkpoint=checkpoint, **live,
     )
+    if viz is not None:
+        viz.landmark_run(result, np.asarray(sequence.times))
     summary: dict[str, Any] = {
         "algorithm": algorithm, "dataset": info.name, "particles": particles, "seed": seed,
         "steps": result.steps, "wall_s": result.wall_s, "compile_s": result.compile_s,
@@ -221,7 +226,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
-             checkpoint=None, keyframes=None):
+             checkpoint=None, keyframes=None, bag=None, viz=None):
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.trajectory_io import write_tum
 
@@ -230,16 +235,26 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         from jaxslam.datasets import laser_sim
 
         log = laser_sim.simulate(seed=seed)
+    elif path is not None and _is_bag(path):
+        from jaxslam.datasets.rosbag import load_rosbag
+
+        log = load_rosbag(path, **(bag or {}))
     else:
         from jaxslam.datasets.carmen import load_dataset_log
 
         log = load_dataset_log(info.name if info is not None else str(path))
+    live = None
+    if viz is not None:
+        live = _grid_live_log(viz, log, max_steps, keyframes, chunk)
+        checkpoint, chunk = live, live.every
     result = grid_experiment.run_grid_slam(
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
         progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
         **({"checkpoint": checkpoint} if checkpoint is not None else {}),
         **{f"{k}_update": v for k, v in (keyframes or {}).items()},
     )
+    if live is not None and not np.array_equal(live.keyframes, result.keyframes):
+        raise RunError("the live view placed the keyframes differently from the run (a bug); its recording is wrong")
     summary: dict[str, Any] = {
         "algorithm": algorithm, "dataset": name, "particles": particles, "seed": seed,
         "scans": int(result.scan_times.shape[0]), "keyframes": int(result.keyframes.shape[0]),
@@ -251,6 +266,8 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}),
     }
+    if path is not None and _is_bag(path):
+        summary["bag"] = dict(log.params)  # the topics and frames used
     write_tum(out / "trajectory.tum", result.scan_times, result.trajectory,
               comment=f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}")
     relations = info.relations_path() if info is not None else None
@@ -274,6 +291,58 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     return summary
 
 
+# --------------------------------------------------------------------------- live view (Rerun)
+
+
+def _open_viz(rerun_path, rerun_spawn, name):
+    """A :class:`jaxslam.viz.rerun_log.RerunLog`, or a RunError naming the install command."""
+    if rerun_path is None and not rerun_spawn:
+        return None
+    try:
+        from jaxslam.viz.rerun_log import RerunLog
+
+        return RerunLog(rerun_path, spawn=rerun_spawn, name=f"jaxslam {name}")
+    except ImportError as err:
+        raise RunError(f"--rerun/--rerun-spawn: {err}") from None
+
+
+def _grid_live_log(viz, log, max_steps, keyframes, chunk):
+    """Follow a grid run: the same keyframes as run_grid_slam chooses."""
+    from jaxslam.datasets.carmen import select_keyframes
+    from jaxslam.grid import experiment as grid_experiment
+    from jaxslam.viz.rerun_log import GridLiveLog
+
+    name = grid_experiment._dataset_name(log)
+    rule = grid_experiment.keyframe_rule(name, *((keyframes or {}).get(k) for k in ("linear", "angular", "temporal")))
+    chosen = select_keyframes(log.odom_poses, *rule, times=log.scan_times)[:max_steps]
+    return GridLiveLog(viz, log, chosen, every=min(chunk or 25, 25))
+
+
+# --------------------------------------------------------------------------- ROS bags
+
+BAG_OPTIONS = ("scan_topic", "odom_topic", "base_frame", "laser_offset")
+
+
+def _is_bag(path) -> bool:
+    from jaxslam.datasets.rosbag import is_rosbag
+
+    return is_rosbag(path)
+
+
+def _bag_options(bag: dict | None, path) -> dict:
+    """The ROS bag options that are set; an error if set for something that is not a bag."""
+    options = {k: v for k, v in (bag or {}).items() if v is not None}
+    unknown = set(options) - set(BAG_OPTIONS)
+    if unknown:
+        raise RunError(f"unknown ROS bag option(s) {sorted(unknown)}; use {', '.join(BAG_OPTIONS)}")
+    if options and (path is None or not _is_bag(path)):
+        raise RunError("--scan-topic/--odom-topic/--base-frame/--laser-mount apply to ROS bags only "
+                       "(a .bag file, a ROS 2 bag folder, .mcap or .db3)")
+    if "laser_offset" in options:
+        options["laser_offset"] = [float(v) for v in options["laser_offset"]]
+    return options
+
+
 # --------------------------------------------------------------------------- entry points
 
 
@@ -292,6 +361,9 @@ def run(
     checkpoint_every: int | None = None,
     resume: bool = False,
     keyframes: dict[str, float] | None = None,
+    bag: dict[str, Any] | None = None,
+    rerun: str | Path | None = None,
+    rerun_spawn: bool = False,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -301,6 +373,11 @@ def run(
     ``out/run.json`` so that ``jaxslam run --resume OUT`` needs nothing else.
     ``keyframes`` (laser data only) sets any of ``linear``, ``angular``, ``temporal``
     of the keyframe rule (see :func:`jaxslam.grid.experiment.keyframe_rule`).
+    ``bag`` (ROS bags only) sets any of ``scan_topic``, ``odom_topic``, ``base_frame``,
+    ``laser_offset`` for :func:`jaxslam.datasets.rosbag.load_rosbag`; the trajectory's
+    stamps are the scans' header stamps (the bag's time base).
+    ``rerun`` (a ``.rrd`` path) and/or ``rerun_spawn`` log the run to Rerun as it goes
+    (:mod:`jaxslam.viz.rerun_log`; needs ``pip install "jaxslam[viz]"``).
     """
     import jax
     import jax.numpy as jnp
@@ -323,6 +400,9 @@ def run(
     if keyframes and kind != "laser":
         raise RunError("keyframe thresholds (--linear-update/--angular-update/--temporal-update) apply to laser "
                        "data only; the landmark filters process every scan")
+    bag = _bag_options(bag, path)
+    if (rerun is not None or rerun_spawn) and (checkpoint_every is not None or resume):
+        raise RunError("--rerun/--rerun-spawn cannot be combined with --checkpoint-every/--resume")
     particles = particles or DEFAULT_PARTICLES[kind]
     if float64:
         jax.config.update("jax_enable_x64", True)
@@ -334,6 +414,8 @@ def run(
                 "max_steps": max_steps, "overrides": overrides, "float64": float64, "chunk": chunk}
     if keyframes:
         run_args["keyframes"] = keyframes
+    if bag:
+        run_args["bag"] = bag
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint
@@ -350,7 +432,15 @@ def run(
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
     if kind == "laser":
         args = (info, path) + args[1:]
-    summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}))
+    viz = _open_viz(rerun, rerun_spawn, dataset_name)
+    try:
+        summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}),
+                         **({"bag": bag} if bag else {}), **({"viz": viz} if viz is not None else {}))
+    finally:
+        if viz is not None:
+            viz.close()
+    if rerun is not None:
+        summary["rerun"] = str(rerun)
     summary["resumed"] = bool(resume)
     summary["overrides"] = overrides
     summary["total_s"] = time.time() - started
@@ -386,6 +476,9 @@ def run_from_args(args) -> dict[str, Any] | None:
         max_steps=args.max_steps, overrides=_overrides_dict(args.overrides), progress=not args.no_progress,
         chunk=args.chunk, float64=args.float64, plots=not args.no_plots, checkpoint_every=args.checkpoint_every,
         keyframes={"linear": args.linear_update, "angular": args.angular_update, "temporal": args.temporal_update},
+        bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,
+             "laser_offset": args.laser_mount},
+        rerun=args.rerun, rerun_spawn=args.rerun_spawn,
     )
 
 

@@ -28,3 +28,38 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 def dtype(request):
     return request.param
 
+
+
+# A short stretch of the Intel log and one grid SLAM run on it, shared by the ROS bag
+# tests (tests/datasets/test_rosbag.py) and the streaming tests (tests/grid/test_stream.py)
+# so that the default suite compiles that run once.
+INTEL_SEGMENT = 300
+INTEL_GRID_OPTIONS = dict(particles=4, seed=3, max_keyframes=6, progress=False)
+
+
+@pytest.fixture(scope="session")
+def intel_segment():
+    import dataclasses
+
+    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.paths import DatasetNotFoundError
+
+    try:
+        log = load_dataset_log("intel")
+    except DatasetNotFoundError as error:
+        pytest.skip(str(error))
+    changes = {}
+    for field in dataclasses.fields(log):
+        value = getattr(log, field.name)
+        if isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == log.num_scans:
+            changes[field.name] = value[:INTEL_SEGMENT]
+    return dataclasses.replace(log, **changes)
+
+
+@pytest.fixture(scope="session")
+def intel_grid_reference(intel_segment):
+    """``run_grid_slam`` on the segment. Named "intel" (from its path), the run takes
+    Intel's keyframe rule; so do runs on bags whose files are named intel.*."""
+    from jaxslam.grid.experiment import run_grid_slam
+
+    return run_grid_slam(intel_segment, **INTEL_GRID_OPTIONS)

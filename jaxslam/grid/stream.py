@@ -1,0 +1,347 @@
+"""Online grid SLAM: odometry and scans one at a time, the map and pose at any time.
+
+:class:`StreamingGridSlam` is the batch run (:func:`jaxslam.grid.experiment.run_grid_slam`)
+taken apart. For each scan it
+
+1. takes the odometry pose at the scan's stamp (given, or interpolated from the
+   odometry messages received so far; a scan waits until odometry newer than it
+   has arrived, so none is dropped);
+2. decides whether the scan is a keyframe with the batch rule
+   (:func:`jaxslam.datasets.carmen.select_keyframes`: GMapping's linear, angular and
+   temporal thresholds on accumulated odometric motion);
+3. for a keyframe, runs one filter step: the filter module's ``step`` (the batch
+   run's, :func:`jaxslam.grid.driver.run_filter`) jitted alone with the batch run's
+   per-step summary (:func:`step_runner`), with the same per-keyframe keys
+   (``jax.random.split(PRNGKey(seed), n)[k]`` does not depend on ``n``). It compiles
+   once; a recompilation happens only when the paged maps or the ray budget
+   (``max_points``) must grow, as in the batch run.
+
+Same inputs, same result: feeding a log scan by scan gives the batch run's keyframes,
+keyframe poses, trajectory and map bit for bit (``tests/grid/test_stream.py``). The
+map frame is the odometry frame; the filter starts at the first scan's odometry.
+
+Example::
+
+    slam = StreamingGridSlam(beam_angles, laser_offset, particles=30)
+    for stamp, kind, data in messages:
+        if kind == "odom":
+            slam.add_odometry(stamp, data)          # (x, y, theta)
+        else:
+            slam.add_scan(stamp, data)              # ranges (B,)
+    pose = slam.pose()                               # best particle, latest scan
+    log_odds, resolution, origin = slam.map()
+"""
+
+from __future__ import annotations
+
+import bisect
+import functools
+import time
+from types import SimpleNamespace
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxslam.datasets.geometry import se2_between, se2_compose
+from jaxslam.datasets.rosbag import interpolate_odometry
+from jaxslam.grid import driver, gmapping, srupf
+from jaxslam.grid.experiment import best_trajectory, make_config, map_layout
+from jaxslam.grid.paged import stitch
+from jaxslam.grid.types import GridSlamParams, Odometry, Scan, default_params
+from jaxslam.grid.update import required_points
+
+__all__ = ["StreamingGridSlam", "step_runner"]
+
+
+@functools.lru_cache(maxsize=16)
+def step_runner(step_fn, config):
+    """One jitted filter step with the batch run's per-step summary
+    (:func:`jaxslam.grid.driver.summarise`); the carry ``(state, params)`` is donated."""
+
+    def one(carry, key, control, observation):
+        state, params = carry
+        state, info = step_fn(key, state, control, observation, params, config)
+        return (state, params), driver.summarise(info)
+
+    return jax.jit(one, donate_argnums=(0,))
+
+
+def _budget(need: int, worst: int) -> int:
+    """``need`` rounded up to a multiple of 1024, at most ``worst`` (rounded up likewise)."""
+    return int(np.ceil(max(min(need, worst), 1) / 1024.0) * 1024)
+
+
+class StreamingGridSlam:
+    """A grid SLAM filter fed one message at a time.
+
+    Args:
+        beam_angles: (B,) beam angles of every scan in the laser frame (rad).
+        laser_offset: (3,) laser pose in the robot frame.
+        algorithm: ``"srupf-gm"``, ``"srupf-gm-npc"`` or ``"gmapping"``.
+        particles: number of particles.
+        seed: PRNG seed (the batch run's).
+        params: overrides of :func:`jaxslam.grid.types.default_params`.
+        config: overrides of the static :class:`GridSlamConfig` fields.
+        linear_update, angular_update, temporal_update: keyframe rule (m, rad, s;
+            GMapping's linearUpdate, angularUpdate, temporalUpdate; negative temporal
+            disables it).
+        resolution: cell size (m).
+        margin: the starting page table covers the first pose plus this many metres
+            (it grows, with one recompilation, if the robot goes further; a page-table
+            entry costs 4 bytes per 3.2 m tile and particle).
+        max_points: ray samples per scan; default: twice what the first keyframe
+            needs (at most what ``B`` beams at the usable range can need), doubled
+            (one recompilation) when a later keyframe needs more. The result does not
+            depend on it as long as no samples are dropped.
+        dtype: float dtype of poses and params.
+    """
+
+    def __init__(
+        self,
+        beam_angles,
+        laser_offset=(0.0, 0.0, 0.0),
+        *,
+        algorithm: str = "srupf-gm",
+        particles: int = 30,
+        seed: int = 0,
+        params: dict[str, Any] | None = None,
+        config: dict[str, Any] | None = None,
+        linear_update: float = 1.0,
+        angular_update: float = 0.5,
+        temporal_update: float = -1.0,
+        resolution: float = 0.05,
+        margin: float = 50.0,
+        max_points: int | None = None,
+        dtype=jnp.float32,
+    ):
+        self.algorithm = algorithm
+        self.particles = int(particles)
+        self.dtype = dtype
+        self.rule = (float(linear_update), float(angular_update), float(temporal_update))
+        self.resolution = float(resolution)
+        self.margin = float(margin)
+        self.params: GridSlamParams = default_params(
+            np.asarray(beam_angles), np.asarray(laser_offset, np.float64), num_particles=particles, dtype=dtype,
+            **(params or {}))
+        self.num_beams = int(np.shape(beam_angles)[0])
+        self.usable = float(self.params.usable_range)
+        self._config_overrides = dict(config or {})
+        self.window_range = float(self._config_overrides.pop("window_range", max(self.usable, 1.0)))
+        self.max_points = max_points
+        self.module = gmapping if algorithm == "gmapping" else srupf
+        self.key = jax.random.PRNGKey(seed)
+        self._keys = None
+        self.config = None
+        self.state = None
+        self.stats = driver.RunStats()
+        self.counts = {"scans": 0, "keyframes": 0, "scans_before_odometry": 0, "odometry_out_of_order": 0,
+                       "recompilations": 0}
+        # Odometry messages (time-ordered) and scans waiting for newer odometry.
+        self._odom_times: list[float] = []
+        self._odom_poses: list[np.ndarray] = []
+        self._pending: list[tuple] = []
+        # Every processed scan; keyframes and the filter outputs per keyframe.
+        self.scan_times: list[float] = []
+        self.odom_poses: list[np.ndarray] = []
+        self.keyframes: list[int] = []
+        self._step_poses: list[np.ndarray] = []
+        self._step_ancestors: list[np.ndarray] = []
+        self.info: dict[str, list] = {"ess": [], "resampled": [], "mean_score": [], "best_score": [],
+                                      "dropped_points": [], "pd_ok_fraction": []}
+        self._linear_sum = self._angular_sum = 0.0
+        self._last_key_time = None
+        self.latency_s: list[float] = []  # wall time of each keyframe's add_scan
+
+    # ------------------------------------------------------------------ input
+
+    def add_odometry(self, stamp: float, pose) -> list[bool]:
+        """An odometry pose ``(x, y, theta)`` at ``stamp``; processes the scans it unblocks.
+
+        Returns the keyframe flags of the scans processed now (oldest first).
+        """
+        pose = np.asarray(pose, np.float64).reshape(3)
+        if self._odom_times and stamp < self._odom_times[-1]:
+            self.counts["odometry_out_of_order"] += 1
+            at = bisect.bisect_right(self._odom_times, stamp)
+            self._odom_times.insert(at, float(stamp))
+            self._odom_poses.insert(at, pose)
+        else:
+            self._odom_times.append(float(stamp))
+            self._odom_poses.append(pose)
+        return self._drain()
+
+    def add_scan(self, stamp: float, ranges, valid=None, odom_pose=None, angle_offset: float = 0.0) -> list[bool]:
+        """A scan at ``stamp``: ``ranges (B,)`` in m, ``valid (B,)`` usable hits (default:
+        finite and positive). With ``odom_pose`` the scan is processed now; otherwise
+        when odometry at or after ``stamp`` has arrived (see :meth:`add_odometry`).
+
+        Returns the keyframe flags of the scans processed now (oldest first).
+        """
+        ranges = np.asarray(ranges, np.float64).reshape(-1)
+        if ranges.shape[0] != self.num_beams:
+            raise ValueError(f"scan at {stamp!r} has {ranges.shape[0]} beams, the mapper was built for "
+                             f"{self.num_beams}")
+        if valid is None:
+            with np.errstate(invalid="ignore"):
+                valid = np.isfinite(ranges) & (ranges > 0)
+        valid = np.asarray(valid, bool).reshape(-1)
+        if odom_pose is not None:
+            return self._drain() + [self._process(float(stamp), ranges, valid, angle_offset,
+                                                  np.asarray(odom_pose, np.float64).reshape(3))]
+        self._pending.append((float(stamp), ranges, valid, angle_offset))
+        return self._drain()
+
+    def _drain(self) -> list[bool]:
+        flags = []
+        while self._pending and self._odom_times:
+            stamp, ranges, valid, offset = self._pending[0]
+            if stamp > self._odom_times[-1]:
+                break  # wait for newer odometry
+            self._pending.pop(0)
+            if stamp < self._odom_times[0]:
+                self.counts["scans_before_odometry"] += 1
+                continue
+            # The two odometry messages around the stamp (O(log n) per scan on long runs).
+            at = max(bisect.bisect_right(self._odom_times, stamp) - 1, 0)
+            pose, _ = interpolate_odometry(np.asarray(self._odom_times[at : at + 2]),
+                                           np.asarray(self._odom_poses[at : at + 2]), [stamp])
+            flags.append(self._process(stamp, ranges, valid, offset, pose[0]))
+        return flags
+
+    # ------------------------------------------------------------------ filter
+
+    def _is_keyframe(self, stamp: float, odom: np.ndarray) -> bool:
+        """select_keyframes, one scan at a time (same arithmetic)."""
+        if not self.odom_poses:
+            self._last_key_time = stamp
+            return True
+        step = se2_between(self.odom_poses[-1][None], odom[None])[0]
+        self._linear_sum += np.hypot(step[0], step[1])
+        self._angular_sum += np.abs(step[2])
+        linear, angular, temporal = self.rule
+        due = temporal >= 0 and stamp - self._last_key_time > temporal
+        if self._linear_sum >= linear or self._angular_sum >= angular or due:
+            self._linear_sum = self._angular_sum = 0.0
+            self._last_key_time = stamp
+            return True
+        return False
+
+    def _scan(self, ranges, valid, offset) -> tuple[Scan, int]:
+        valid = valid & np.isfinite(ranges)
+        ranges = np.where(valid, ranges, 0.0)
+        need = required_points(np.minimum(ranges, self.usable), valid, self.resolution)
+        scan = Scan(jnp.asarray(ranges, self.dtype), jnp.asarray(valid), jnp.asarray(offset, self.dtype))
+        return scan, need
+
+    def _worst_case(self) -> int:
+        return required_points(np.full(self.num_beams, self.usable), np.ones(self.num_beams, bool), self.resolution)
+
+    def _step_keys(self, index: int):
+        if self._keys is None or index >= self._keys.shape[0]:
+            size = 1024 if self._keys is None else 2 * self._keys.shape[0]
+            while size <= index:
+                size *= 2
+            self._keys = jax.random.split(self.key, size)
+        return self._keys[index]
+
+    def _process(self, stamp, ranges, valid, offset, odom) -> bool:
+        started = time.perf_counter()
+        keyframe = self._is_keyframe(stamp, odom)
+        self.counts["scans"] += 1
+        index = len(self.scan_times)
+        self.scan_times.append(stamp)
+        self.odom_poses.append(odom)
+        if not keyframe:
+            return False
+        scan, need = self._scan(ranges, valid, offset)
+        if not self.keyframes:
+            self._start(scan, need, odom)
+        else:
+            previous = self.odom_poses[self.keyframes[-1]]
+            control = Odometry(jnp.asarray(se2_between(previous[None], odom[None])[0], self.dtype),
+                               jnp.asarray(float(index - self.keyframes[-1]), self.dtype))
+            self._step(control, scan, need)
+        self.keyframes.append(index)
+        self.counts["keyframes"] += 1
+        jax.block_until_ready(self.state)
+        self.latency_s.append(time.perf_counter() - started)
+        return True
+
+    def _start(self, scan: Scan, need: int, odom: np.ndarray) -> None:
+        if self.max_points is None:
+            self.max_points = _budget(2 * need, self._worst_case())
+        layout = map_layout(SimpleNamespace(odom_poses=odom[None]), np.array([0]), self.resolution, self.margin,
+                            self.particles, self.window_range)
+        self.config = make_config(self.algorithm, self.particles, layout, self.num_beams, self.max_points,
+                                  window_range=self.window_range, **self._config_overrides)
+        self.state, self.config = driver.init_state(self.key, self.params, self.config, scan,
+                                                    jnp.asarray(odom, self.dtype), self.stats)
+        self.configs_used = {self.config}
+
+    def _step(self, control: Odometry, scan: Scan, need: int) -> None:
+        """One keyframe through the batch run's chunk runner (a chunk of one)."""
+        import dataclasses
+
+        if need > self.config.max_points:  # a larger ray budget: one recompilation
+            budget = _budget(max(need, 2 * self.config.max_points), self._worst_case())
+            self.config = dataclasses.replace(self.config, max_points=budget)
+            self.counts["recompilations"] += 1
+        step = len(self.keyframes) - 1
+        key = self._step_keys(step)
+        while True:
+            runner = step_runner(self.module.step, self.config)
+            self.configs_used.add(self.config)
+            # The runner donates its carry: keep what it returns.
+            (self.state, self.params), ys = runner((self.state, self.params), key, control, scan)
+            if int(ys["status"]) == 0:
+                break
+            # The maps are full: grow them (one recompilation) and run the step again.
+            self.state, layout = driver._grown(self.state, self.config.layout, self.stats, step, False)
+            self.config = dataclasses.replace(self.config, layout=layout)
+            self.counts["recompilations"] += 1
+        ys = jax.device_get(ys)
+        self._step_poses.append(ys["poses"])
+        self._step_ancestors.append(ys["ancestors"])
+        for name in self.info:
+            self.info[name].append(ys[name])
+
+    # ------------------------------------------------------------------ output
+
+    def best_index(self) -> int:
+        """The particle with the largest accumulated log-likelihood (GMapping's choice)."""
+        return int(np.argmax(np.asarray(self.state.cumulative_log_likelihood)))
+
+    def keyframe_poses(self) -> np.ndarray:
+        """(K, 3) corrected keyframe poses of the best particle's lineage."""
+        first = self.odom_poses[self.keyframes[0]][None]
+        if len(self.keyframes) < 2:
+            return first.copy()
+        path = best_trajectory(np.stack(self._step_poses), np.stack(self._step_ancestors), self.best_index())
+        return np.concatenate([first, np.asarray(path, np.float64)], 0)
+
+    def trajectory(self) -> np.ndarray:
+        """(S, 3) a pose for every scan so far: its keyframe's corrected pose and the
+        odometry since (as the batch run)."""
+        from jaxslam.metrics.trajectory_io import interpolate_poses
+
+        return interpolate_poses(np.asarray(self.keyframes), self.keyframe_poses(), np.stack(self.odom_poses))
+
+    def pose(self) -> np.ndarray:
+        """(3,) the best estimate of the latest scan's robot pose."""
+        corrected = self.keyframe_poses()[-1]
+        since = se2_between(self.odom_poses[self.keyframes[-1]][None], self.odom_poses[-1][None])
+        return se2_compose(corrected[None], since)[0]
+
+    def map(self) -> tuple[np.ndarray, float, tuple[float, float]]:
+        """``(log_odds (H, W) float32, resolution, origin)`` of the best particle's map
+        (row 0 at ``origin`` y)."""
+        best = self.best_index()
+        cells, origin = stitch(self.state.maps.pool, self.state.maps.tables[best], self.config.layout)
+        return cells.astype(np.float32) * float(self.params.log_odds_unit), self.config.layout.resolution, origin
+
+    def step_versions(self) -> int:
+        """How many static configurations the step ran under (each one compilation):
+        1 unless the maps or the ray budget grew."""
+        return len(getattr(self, "configs_used", ()))

@@ -1,0 +1,1 @@
+"""Live views of running filters (optional: ``pip install "jaxslam[viz]"``)."""

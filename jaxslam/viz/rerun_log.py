@@ -1,0 +1,255 @@
+"""Log a SLAM run to Rerun (https://rerun.io): a ``.rrd`` file or a spawned viewer.
+
+Everything lives in one 3-D scene (z = 0; look at it from the top) on the timeline
+``scan`` (the index of the scan in the log), with ``stamp`` (the scan's time
+stamp, s) beside it:
+
+* ``world/map``: the best particle's occupancy grid as a ``GridMap`` in the ROS
+  ``nav_msgs/OccupancyGrid`` convention (0..100 % occupied, 255 unknown), logged
+  as it grows (once per chunk of keyframes);
+* ``world/particles``: every particle's pose (points, with heading arrows);
+* ``world/trajectory``: the best particle's path so far;
+* ``world/scan``: the hits of the scan placed at the best particle's pose;
+* ``world/landmarks`` (landmark runs): the best particle's landmarks and their
+  3-sigma ellipses;
+* ``health/ess`` and ``health/resampled``: effective sample size and resampling.
+
+Hooks. :class:`GridLiveLog` follows a :func:`jaxslam.grid.experiment.run_grid_slam`
+run through its ``checkpoint`` slot (called at the end of each chunk with the carry
+and the outputs so far; it saves nothing); :meth:`RerunLog.landmark_callback` is a
+``callback`` for :func:`jaxslam.feature.experiment.run_landmark_slam`.
+
+Rerun is an optional dependency; without it :func:`require_rerun` raises an
+:class:`ImportError` that names ``pip install "jaxslam[viz]"``.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+INSTALL_HINT = 'pip install "jaxslam[viz]"'
+
+
+def require_rerun():
+    """The ``rerun`` module, or an ImportError naming the install command."""
+    try:
+        import rerun
+    except ImportError as error:
+        raise ImportError(f"the live view needs the Rerun SDK: {INSTALL_HINT}") from error
+    return rerun
+
+
+def occupancy_percent(log_odds: np.ndarray) -> np.ndarray:
+    """``uint8`` (H, W), top row = largest y: ``round(100 p)`` and 255 where unknown (log-odds 0)."""
+    lo = np.asarray(log_odds, np.float64)
+    percent = np.rint(100.0 / (1.0 + np.exp(-lo))).astype(np.uint8)
+    percent[lo == 0.0] = 255
+    return np.ascontiguousarray(percent[::-1])
+
+
+def ellipse_points(mean: np.ndarray, cov: np.ndarray, sigmas: float = 3.0, segments: int = 32) -> np.ndarray:
+    """(segments + 1, 2) closed polyline ``{mean + sigmas L u : |u| = 1}``, ``L L^T = cov``."""
+    values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+    axes = vectors * np.sqrt(np.maximum(values, 0.0))[None, :]
+    t = np.linspace(0.0, 2.0 * np.pi, segments + 1)
+    return mean[None, :] + sigmas * (np.cos(t)[:, None] * axes[:, 0] + np.sin(t)[:, None] * axes[:, 1])
+
+
+def _xyz(xy: np.ndarray) -> np.ndarray:
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    return np.concatenate([xy, np.zeros((xy.shape[0], 1))], axis=1).astype(np.float32)
+
+
+class RerunLog:
+    """One Rerun recording of a run.
+
+    Args:
+        path: write the recording to this ``.rrd`` file.
+        spawn: also open (or connect to) a viewer.
+        name: the recording's application id.
+    """
+
+    def __init__(self, path: os.PathLike | str | None = None, spawn: bool = False, name: str = "jaxslam"):
+        rr = require_rerun()
+        if path is None and not spawn:
+            raise ValueError("give a path for the .rrd file, spawn=True, or both")
+        self.rr = rr
+        self.stream = rr.RecordingStream(name)
+        sinks = []
+        if path is not None:
+            sinks.append(rr.FileSink(str(path)))
+        if spawn:
+            rr.spawn(connect=False)
+            sinks.append(rr.GrpcSink())
+        self.stream.set_sinks(*sinks)
+        self.path = path
+
+    def at(self, scan: int, stamp: float | None = None) -> None:
+        """Put what follows on the timeline at scan index ``scan`` (and time ``stamp``)."""
+        self.stream.set_time("scan", sequence=int(scan))
+        if stamp is not None and np.isfinite(stamp):
+            self.stream.set_time("stamp", duration=float(stamp))
+
+    def grid_map(self, log_odds: np.ndarray, resolution: float, origin) -> None:
+        rr = self.rr
+        image = occupancy_percent(log_odds)
+        height, width = image.shape
+        self.stream.log("world/map", rr.GridMap(
+            data=image.tobytes(),
+            format=rr.components.ImageFormat(width=width, height=height, color_model="L", channel_datatype="U8"),
+            cell_size=float(resolution), translation=[float(origin[0]), float(origin[1]), -0.01],
+            colormap=rr.components.Colormap.RvizMap))
+
+    def particles(self, poses: np.ndarray, arrow: float = 0.3) -> None:
+        rr = self.rr
+        poses = np.asarray(poses, np.float64).reshape(-1, 3)
+        heads = np.stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])], axis=1) * arrow
+        self.stream.log("world/particles", rr.Points3D(_xyz(poses[:, :2]), radii=0.05, colors=[255, 120, 0]))
+        self.stream.log("world/particles/heading", rr.Arrows3D(origins=_xyz(poses[:, :2]), vectors=_xyz(heads),
+                                                               colors=[255, 120, 0]))
+
+    def trajectory(self, poses: np.ndarray) -> None:
+        rr = self.rr
+        self.stream.log("world/trajectory", rr.LineStrips3D([_xyz(np.asarray(poses)[:, :2])], colors=[30, 120, 255],
+                                                            radii=0.03))
+
+    def scan(self, pose, laser_offset, angles, ranges, valid) -> None:
+        """The hits of one scan in the world, seen from robot pose ``pose``."""
+        from jaxslam.datasets.geometry import se2_compose
+
+        laser = se2_compose(np.asarray(pose, np.float64), np.asarray(laser_offset, np.float64))
+        keep = np.asarray(valid, bool) & np.isfinite(ranges)
+        r = np.asarray(ranges, np.float64)[keep]
+        a = laser[2] + np.asarray(angles, np.float64)[keep]
+        hits = np.stack([laser[0] + r * np.cos(a), laser[1] + r * np.sin(a)], axis=1)
+        self.stream.log("world/scan", self.rr.Points3D(_xyz(hits), radii=0.03, colors=[220, 30, 30]))
+
+    def health(self, ess: float, resampled: bool) -> None:
+        self.stream.log("health/ess", self.rr.Scalars(float(ess)))
+        self.stream.log("health/resampled", self.rr.Scalars(float(bool(resampled))))
+
+    def landmarks(self, means: np.ndarray, covs: np.ndarray, sigmas: float = 3.0) -> None:
+        rr = self.rr
+        means = np.asarray(means, np.float64).reshape(-1, 2)
+        covs = np.asarray(covs, np.float64).reshape(-1, 2, 2)
+        self.stream.log("world/landmarks", rr.Points3D(_xyz(means), radii=0.15, colors=[0, 170, 0]))
+        strips = [_xyz(ellipse_points(m, c, sigmas)) for m, c in zip(means, covs, strict=True)]
+        self.stream.log("world/landmarks/ellipses", rr.LineStrips3D(strips, colors=[0, 170, 0], radii=0.02))
+
+    def landmark_callback(self, times: np.ndarray, offset: int = 0):
+        """A ``callback(carry, steps_done)`` for :func:`run_landmark_slam`: particles and
+        the best particle's landmarks after each chunk."""
+
+        def callback(carry, done):
+            state = carry[0]
+            step = int(done) - 1
+            self.at(offset + step, float(times[step]) if step < len(times) else None)
+            self.particles(np.asarray(state.pose_means))
+            best = int(np.argmax(np.asarray(state.log_weights)))
+            active = np.asarray(state.landmarks.active[best])
+            self.landmarks(np.asarray(state.landmarks.means[best])[active], np.asarray(state.landmarks.covs[best])[active])
+
+        return callback
+
+    def landmark_run(self, result, times: np.ndarray) -> None:
+        """After a landmark run: trajectory, ESS and resampling at every step."""
+        rr = self.rr
+        steps = np.arange(result.trajectory.shape[0])
+        self.stream.send_columns("health/ess", indexes=[rr.TimeColumn("scan", sequence=steps)],
+                                 columns=rr.Scalars.columns(scalars=np.asarray(result.info["ess"], np.float64)))
+        self.stream.send_columns("health/resampled", indexes=[rr.TimeColumn("scan", sequence=steps)],
+                                 columns=rr.Scalars.columns(
+                                     scalars=np.asarray(result.info["resampled"], np.float64)))
+        self.at(int(steps[-1]), float(times[-1]) if len(times) else None)
+        self.trajectory(result.trajectory)
+        self.landmarks(result.landmark_means, result.landmark_covs)
+
+    def close(self) -> None:
+        self.stream.flush()
+        self.stream.disconnect()
+
+
+def _summary_structure():
+    """The pytree structure of a grid run's per-step outputs
+    (:func:`jaxslam.grid.driver.summarise`), to name the leaves a checkpoint receives."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxslam.grid.driver import summarise
+    from jaxslam.grid.types import GridSlamInfo
+
+    dummy = GridSlamInfo(*([jnp.zeros((1,))] * len(GridSlamInfo._fields)))
+    return jax.tree_util.tree_structure(summarise(dummy))
+
+
+class GridLiveLog:
+    """Follows a grid run chunk by chunk (through ``run_grid_slam``'s ``checkpoint`` slot).
+
+    At the end of each chunk of ``every`` keyframes it logs, for every keyframe of
+    the chunk, the particles, ESS and resampling and the scan at the best lineage's
+    pose, then the best particle's path and map. It writes no checkpoint file. The
+    laser mount and the log-odds unit come from the run's parameters (the second half
+    of the carry), the map layout from ``static["layout"]`` (set by
+    :func:`jaxslam.grid.driver.run_filter` before each stretch of the run).
+
+    Args:
+        viz: the :class:`RerunLog`.
+        log: the :class:`CarmenLog` being run (scans, stamps, beam angles).
+        keyframes: the run's keyframe indices into the scans.
+        every: keyframes per chunk (map updates).
+    """
+
+    resume = False
+
+    def __init__(self, viz: RerunLog, log, keyframes, every=25):
+        self.viz = viz
+        self.log = log
+        self.keyframes = np.asarray(keyframes)
+        self.every = int(every)
+        self.static: dict[str, Any] = {}
+        self._logged = 0
+        self._first = True
+        self._structure = _summary_structure()
+
+    def due(self, done: int) -> bool:
+        return True
+
+    def _scan_at(self, scan: int, pose, laser_offset) -> None:
+        log = self.log
+        self.viz.scan(pose, laser_offset, log.beam_angles()[scan], np.asarray(log.ranges[scan], np.float64),
+                      log.valid[scan])
+
+    def save(self, carry, done: int, leaves: list) -> None:
+        import jax
+
+        from jaxslam.grid.experiment import best_trajectory
+        from jaxslam.grid.paged import PagedLayout, stitch
+
+        state, params = carry
+        laser_offset = np.asarray(params.laser_offset, np.float64)
+        unit = float(params.log_odds_unit)
+        viz, kf, times = self.viz, self.keyframes, np.asarray(self.log.scan_times)
+        odom0 = np.asarray(self.log.odom_poses[kf[0]], np.float64)
+        if self._first:
+            self._first = False
+            viz.at(int(kf[0]), float(times[kf[0]]))
+            self._scan_at(int(kf[0]), odom0, laser_offset)
+        outputs = jax.tree_util.tree_unflatten(self._structure, [np.asarray(leaf) for leaf in leaves])
+        best = int(np.argmax(np.asarray(state.cumulative_log_likelihood)))
+        poses = outputs["poses"]
+        path = best_trajectory(poses, outputs["ancestors"], best)
+        path = np.concatenate([odom0[None], np.asarray(path, np.float64)], 0)
+        for step in range(self._logged, int(done)):
+            scan = int(kf[step + 1])
+            viz.at(scan, float(times[scan]))
+            viz.particles(poses[step])
+            viz.health(float(outputs["ess"][step]), bool(outputs["resampled"][step]))
+            self._scan_at(scan, path[step + 1], laser_offset)
+        viz.trajectory(path[: int(done) + 1])
+        layout = PagedLayout(**self.static["layout"])
+        cells, origin = stitch(state.maps.pool, state.maps.tables[best], layout)
+        viz.grid_map(cells.astype(np.float32) * unit, layout.resolution, origin)
+        self._logged = int(done)
