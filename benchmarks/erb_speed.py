@@ -83,6 +83,8 @@ def main() -> None:
                     rows.append(r)
                     print(f"{label} N={n}: wall {r['wall_s']:.1f} s, compile {r['compile_s']:.1f} s, "
                           f"GPS {r['gps_mean_m']:.2f} m", flush=True)
+                    write_json(args.name, dict(dataset="victoria-park", algorithm=args.algorithm,
+                                               baseline=args.baseline, steps=args.steps, runs=rows, complete=False))
     ratios = {}
     for n in args.particles:
         base = min(r["wall_s"] for r in rows if r["particles"] == n and r["revision"] != "this tree")
@@ -91,7 +93,7 @@ def main() -> None:
         new_c = min(r["compile_s"] for r in rows if r["particles"] == n and r["revision"] == "this tree")
         ratios[n] = dict(filter_speedup=base / new, compile_ratio=new_c / base_c, best_wall_s=new, baseline_best_wall_s=base)
     path = write_json(args.name, dict(dataset="victoria-park", algorithm=args.algorithm, baseline=args.baseline,
-                                      steps=args.steps, runs=rows, ratios=ratios))
+                                      steps=args.steps, runs=rows, ratios=ratios, complete=True))
     print_table(rows, ["revision", "particles", "repeat", "wall_s", "compile_s", "us_per_particle_scan", "gps_mean_m"])
     print("ratios (best of repeats):", ratios)
     print(f"wrote {path}")
