@@ -1,20 +1,27 @@
-"""Accuracy and speed of RB-UPF and ERB-UPF against the particle count, Victoria Park.
+"""Accuracy and speed of RB-UPF and ERB-UPF against the particle count, Victoria Park,
+as seed statistics.
 
-For each particle count and algorithm: GPS error after rigid alignment (mean, RMS,
-max), landmarks of the best particle, resamplings, wall time after compilation and
-compilation time (reported apart), ms per scan and per particle-scan.
+For each particle count and algorithm, one ensemble of ``--seeds`` seeds run as one
+program (:func:`jaxslam.feature.experiment.run_landmark_seeds`): per seed the GPS
+error after rigid alignment (mean, RMS, max), the landmarks of the best particle and
+the resamplings; per point the mean, standard deviation and 95% confidence interval
+(Student t) over seeds. Wall time is that of the whole ensemble after compilation
+(compilation reported apart), and per seed.
 
-    python benchmarks/erb_particles.py [--particles 1 3 10 30 100 300 1000] [--seed 0]
+    python benchmarks/erb_particles.py [--particles 1 3 10 30 100 300 1000] [--seeds 10]
 
-Writes ``benchmarks/results/erb_particles.json`` and ``erb_particles.png``.
+Writes ``benchmarks/results/<name>.json`` and ``<name>.png``. With ``--merge`` the
+points already in ``<name>.json`` that this run does not redo are kept.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -22,75 +29,101 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import RESULTS, print_table, write_json  # noqa: E402
 
 from jaxslam.datasets import victoria_park  # noqa: E402
-from jaxslam.feature.experiment import run_landmark_slam  # noqa: E402
+from jaxslam.feature.experiment import run_landmark_seeds  # noqa: E402
 from jaxslam.metrics.gps import gps_error  # noqa: E402
+from jaxslam.metrics.stats import mean_ci  # noqa: E402
+
+
+def summarise(seq, res) -> dict:
+    """Seed statistics of one ensemble."""
+    errs = [gps_error(seq.times, res.trajectory[i], seq.gps_times, seq.gps_xy) for i in range(len(res.seeds))]
+    row = dict(algorithm=res.algorithm, particles=res.particles, seeds=res.seeds, steps=res.steps)
+    for name in ("gps_mean_m", "gps_rms_m", "gps_max_m"):
+        values = [e[name] for e in errs]
+        stats = mean_ci(values)
+        row[name] = stats["mean"]
+        row[f"{name}_std"] = stats["std"]
+        row[f"{name}_ci"] = [stats["ci_low"], stats["ci_high"]]
+        row[f"{name}_per_seed"] = values
+    row["gps_mean_m_median"] = float(np.median(row["gps_mean_m_per_seed"]))
+    row["landmarks_per_seed"] = res.landmarks.tolist()
+    row["landmarks"] = float(np.mean(res.landmarks))
+    row["resamplings_per_seed"] = res.resamplings.tolist()
+    row["resamplings"] = float(np.mean(res.resamplings))
+    row["wall_s"] = res.wall_s
+    row["wall_s_per_seed"] = res.wall_s / len(res.seeds)
+    row["compile_s"] = res.compile_s
+    row["us_per_particle_scan"] = 1e6 * res.wall_s / (res.steps * res.particles * len(res.seeds))
+    return row
+
+
+def plot(rows, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for algorithm, color, shift in (("rb-upf", "tab:red", 0.94), ("erb-upf", "tab:green", 1.06)):
+        mine = sorted((r for r in rows if r["algorithm"] == algorithm), key=lambda r: r["particles"])
+        if not mine:
+            continue
+        n = np.array([r["particles"] for r in mine], float) * shift
+        mean = np.array([r["gps_mean_m"] for r in mine])
+        ci = np.array([r["gps_mean_m_ci"] for r in mine])
+        axes[0].errorbar(n, mean, yerr=[mean - ci[:, 0], ci[:, 1] - mean], fmt="o-", color=color, capsize=3,
+                         label=f"{algorithm}: mean, 95% CI over seeds")
+        for x, r in zip(n, mine):
+            axes[0].plot(np.full(len(r["gps_mean_m_per_seed"]), x), r["gps_mean_m_per_seed"], ".", color=color,
+                         alpha=0.35, ms=4)
+        axes[1].loglog(n, [r["wall_s_per_seed"] for r in mine], "o-", color=color, label=f"{algorithm} wall per seed")
+    axes[0].set_xscale("log")
+    axes[0].set_yscale("log")
+    axes[0].set_xlabel("particles")
+    axes[0].set_ylabel("mean GPS error [m] (dots: seeds)")
+    axes[0].set_title("Victoria Park accuracy over seeds")
+    axes[1].set_xlabel("particles")
+    axes[1].set_ylabel("seconds (ensemble wall / seeds)")
+    axes[1].set_title("filter time per seed (run as one ensemble)")
+    for ax in axes:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--particles", type=int, nargs="+", default=[1, 3, 10, 30, 100, 300, 1000])
     parser.add_argument("--algorithms", nargs="+", default=["rb-upf", "erb-upf"])
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", type=int, default=10, help="seeds 0 .. SEEDS-1")
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--name", default="erb_particles")
+    parser.add_argument("--merge", action="store_true", help="keep the other points of an existing result file")
     args = parser.parse_args()
 
     seq = victoria_park.load_sequence("detections", max_range=30.0, max_steps=args.steps)
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     rows = []
+    old = RESULTS / f"{args.name}.json"
+    if args.merge and old.exists():
+        rows = json.loads(old.read_text()).get("runs", [])
+    redo = {(a, n) for a in args.algorithms for n in args.particles}
+    rows = [r for r in rows if (r["algorithm"], r["particles"]) not in redo]
     for n in args.particles:
         for algorithm in args.algorithms:
-            res = run_landmark_slam(seq, algorithm, particles=n, seed=args.seed, progress=False)
-            err = gps_error(res.times, res.trajectory, seq.gps_times, seq.gps_xy)
-            rows.append(
-                dict(
-                    algorithm=algorithm,
-                    particles=n,
-                    seed=args.seed,
-                    steps=res.steps,
-                    gps_mean_m=err["gps_mean_m"],
-                    gps_rms_m=err["gps_rms_m"],
-                    gps_max_m=err["gps_max_m"],
-                    landmarks=res.landmarks,
-                    resamplings=res.resamplings,
-                    wall_s=res.wall_s,
-                    compile_s=res.compile_s,
-                    ms_per_scan=1000 * res.wall_s / res.steps,
-                    us_per_particle_scan=1e6 * res.wall_s / (res.steps * n),
-                )
-            )
+            res = run_landmark_seeds(seq, algorithm, particles=n, seeds=seeds)
+            rows.append(summarise(seq, res))
             r = rows[-1]
-            print(f"{algorithm} N={n}: GPS mean {r['gps_mean_m']:.2f} m, wall {r['wall_s']:.1f} s, "
-                  f"compile {r['compile_s']:.1f} s", flush=True)
-            write_json(args.name, dict(dataset="victoria-park", seed=args.seed, runs=rows, complete=False))
-    path = write_json(args.name, dict(dataset="victoria-park", seed=args.seed, runs=rows, complete=True))
-    print_table(rows, ["algorithm", "particles", "gps_mean_m", "gps_rms_m", "gps_max_m", "landmarks",
-                       "resamplings", "wall_s", "compile_s", "ms_per_scan"])
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for algorithm, color in (("rb-upf", "tab:red"), ("erb-upf", "tab:green")):
-        mine = [r for r in rows if r["algorithm"] == algorithm]
-        if not mine:
-            continue
-        n = [r["particles"] for r in mine]
-        axes[0].loglog(n, [r["gps_mean_m"] for r in mine], "o-", color=color, label=f"{algorithm} mean")
-        axes[0].loglog(n, [r["gps_max_m"] for r in mine], "x--", color=color, label=f"{algorithm} max")
-        axes[1].loglog(n, [r["wall_s"] for r in mine], "o-", color=color, label=f"{algorithm} wall")
-        axes[1].loglog(n, [r["compile_s"] for r in mine], "x:", color=color, label=f"{algorithm} compile")
-    axes[0].set_xlabel("particles")
-    axes[0].set_ylabel("GPS error [m]")
-    axes[1].set_xlabel("particles")
-    axes[1].set_ylabel("seconds")
-    axes[0].legend(fontsize=8)
-    axes[1].legend(fontsize=8)
-    axes[0].set_title("Victoria Park accuracy")
-    axes[1].set_title("run time (after compilation) and compile time")
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{args.name}.png", dpi=120)
+            print(f"{algorithm} N={n}, {len(seeds)} seeds: GPS mean {r['gps_mean_m']:.2f} m "
+                  f"(std {r['gps_mean_m_std']:.2f}, 95% CI {r['gps_mean_m_ci'][0]:.2f}-{r['gps_mean_m_ci'][1]:.2f}), "
+                  f"wall {r['wall_s']:.1f} s, compile {r['compile_s']:.1f} s", flush=True)
+            write_json(args.name, dict(dataset="victoria-park", runs=rows, complete=False))
+    rows.sort(key=lambda r: (r["algorithm"], r["particles"]))
+    path = write_json(args.name, dict(dataset="victoria-park", runs=rows, complete=True))
+    print_table(rows, ["algorithm", "particles", "gps_mean_m", "gps_mean_m_std", "gps_mean_m_median", "gps_rms_m",
+                       "gps_max_m", "landmarks", "resamplings", "wall_s_per_seed", "compile_s"])
+    plot(rows, RESULTS / f"{args.name}.png")
     print(f"wrote {path}")
 
 

@@ -1,15 +1,65 @@
 """Closed-form 2x2 and 3x3 linear algebra, elementwise on leading batch axes.
 
 XLA on CPU runs ``jnp.linalg.cholesky``/``inv`` on tiny matrices as one LAPACK call
-per matrix; written out as arithmetic they fuse into the surrounding vectorised
-code, which is what makes per-particle, per-observation filters fast. Private to
-:mod:`jaxslam.feature`.
+per matrix, and batched products of tiny matrices (``einsum`` over 2 or 3 entries,
+or a weighted sum over 11 sigma points) as batched ``dot`` or ``reduce`` kernels
+that cost far more than their arithmetic; written out as elementwise arithmetic
+(the contraction unrolled over its few entries) they fuse into the surrounding
+vectorised code, which is what makes per-particle, per-observation filters fast.
+Private to :mod:`jaxslam.feature`.
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
 from jax import Array
+
+
+def wsum(weights: Array, values: Array, axis: int = -1) -> Array:
+    """``sum_i weights[i] * values[..., i, ...]`` over a short static ``axis``, unrolled."""
+    values = jnp.moveaxis(values, axis, 0)
+    total = weights[0] * values[0]
+    for i in range(1, values.shape[0]):
+        total = total + weights[i] * values[i]
+    return total
+
+
+def wsum_product(weights: Array, a: Array, b: Array, axis: int = -1) -> Array:
+    """``sum_i weights[i] a_i b_i`` (elementwise products) over a short ``axis``, unrolled,
+    slicing before multiplying so no product tensor is formed."""
+    a = jnp.moveaxis(a, axis, 0)
+    b = jnp.moveaxis(b, axis, 0)
+    total = weights[0] * (a[0] * b[0])
+    for i in range(1, a.shape[0]):
+        total = total + weights[i] * (a[i] * b[i])
+    return total
+
+
+def weighted_outer(weights: Array, a: Array, b: Array) -> Array:
+    """``sum_i weights[i] a_i b_i^T`` for rows ``a (..., P, m)``, ``b (..., P, n)``:
+    ``(..., m, n)`` (a weighted sigma-point covariance), unrolled over ``P``."""
+    return wsum_product(weights, a[..., :, :, None], b[..., :, None, :], axis=-3)
+
+
+def matmul(a: Array, b: Array) -> Array:
+    """``a @ b`` for small matrices ``(..., m, k) @ (..., k, n)``, unrolled over ``k``."""
+    total = a[..., :, 0, None] * b[..., None, 0, :]
+    for j in range(1, a.shape[-1]):
+        total = total + a[..., :, j, None] * b[..., None, j, :]
+    return total
+
+
+def matvec(a: Array, x: Array) -> Array:
+    """``a @ x`` for small matrices ``(..., m, k)`` and vectors ``(..., k)``."""
+    total = a[..., :, 0] * x[..., 0, None]
+    for j in range(1, a.shape[-1]):
+        total = total + a[..., :, j] * x[..., j, None]
+    return total
+
+
+def quad2(x: Array, a: Array) -> Array:
+    """``x^T a x`` for 2-vectors and symmetric 2x2 matrices."""
+    return a[..., 0, 0] * x[..., 0] ** 2 + 2.0 * a[..., 0, 1] * x[..., 0] * x[..., 1] + a[..., 1, 1] * x[..., 1] ** 2
 
 
 def _tiny(x: Array) -> Array:

@@ -102,7 +102,7 @@ def associate(
     offset = jnp.asarray(params.sensor_offset, dtype)
     local_means, local_covs = gather(table, local)
     endpoints = jax.vmap(inverse_observe, (None, 0, None))(pose_mean, observations, offset)
-    d2 = jnp.sum((endpoints[:, None, :] - local_means[None, :, :]) ** 2, -1)
+    d2 = (endpoints[:, None, 0] - local_means[None, :, 0]) ** 2 + (endpoints[:, None, 1] - local_means[None, :, 1]) ** 2
     d2 = jnp.where(local_valid[None, :], d2, jnp.inf)
     cand_d2, cand = _smallest(d2, num_candidates)  # (k, n)
     cand_valid = jnp.isfinite(cand_d2) & mask[:, None]
@@ -114,7 +114,7 @@ def associate(
         sig, observations, params, False
     )
     s_inv, s_logdet = _small.inv2(terms.innovation_cov)
-    maha = jnp.einsum("kni,knij,knj->kn", terms.innovation, s_inv, terms.innovation)
+    maha = _small.quad2(terms.innovation, s_inv)
     maha = jnp.where(cand_valid, maha, jnp.inf)
     gated = maha < params.gate_associate
     score = jnp.where(gated, maha + s_logdet, jnp.inf)

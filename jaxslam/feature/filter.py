@@ -65,7 +65,6 @@ from jax import Array
 from jax.scipy.special import logsumexp
 
 from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
-from jaxslam.core.se2 import pose_mean as weighted_pose_mean
 from jaxslam.core.se2 import pose_residual, wrap_angle
 from jaxslam.core.sigma import sigma_points, ut_weights
 from jaxslam.feature import _small
@@ -129,6 +128,11 @@ class Info(NamedTuple):
     num_nonfinite_particles: Array  # int32 particles whose new pose/weight was not finite (not propagated)
     num_rejected_landmarks: Array  # int32 landmark updates/initialisations refused as non-finite (all particles)
     num_cov_repairs: Array  # int32 landmark covariance updates whose eigenvalue floor was applied
+    weight_entropy: Array  # entropy -sum w log w of the normalised weights before resampling [nats]
+    num_ancestors: Array  # int32 distinct particles that survive this step's resampling (N if none)
+    num_landmarks_min: Array  # int32 fewest landmarks over the particles
+    num_landmarks_max: Array  # int32 most landmarks over the particles
+    association_disagreement: Array  # int32 real observations whose decision (match/new/ignore) differs between particles
 
 
 def cast_params(params: Params, dtype) -> Params:
@@ -207,9 +211,11 @@ def predict_pose(pose: Array, pose_sqrt: Array, controls: Array, params: Params)
             ],
             -1,
         )
-        new_mean = weighted_pose_mean(moved, mean_w)
-        dev = jax.vmap(pose_residual, (0, None))(moved, new_mean)
-        cov = jnp.einsum("i,ij,ik->jk", cov_w, dev, dev)
+        heading = moved[0, 2] + _small.wsum(mean_w, wrap_angle(moved[:, 2] - moved[0, 2]))
+        new_mean = jnp.stack([_small.wsum(mean_w, moved[:, 0]), _small.wsum(mean_w, moved[:, 1]), wrap_angle(heading)])
+        dev = moved - new_mean
+        dev = jnp.stack([dev[:, 0], dev[:, 1], wrap_angle(dev[:, 2])], -1)
+        cov = _small.weighted_outer(cov_w, dev, dev)
         new_sqrt = _small.chol3(cov)
         ok = dt > 0
         return (jnp.where(ok, new_mean, mean), jnp.where(ok, new_sqrt, sqrt)), None
@@ -260,17 +266,21 @@ def update_landmark(
     points = sigma_points(mean, _small.chol2(cov), params.ut_landmark)
     sensor = sensor_position(pose, jnp.asarray(params.sensor_offset, dtype))
     d = points - sensor
-    y = jnp.stack([jnp.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2), jnp.arctan2(d[:, 1], d[:, 0]) - pose[2]], -1)
-    y = y.at[:, 1].set(y[0, 1] + wrap_angle(y[:, 1] - y[0, 1]))
-    y_mean = mean_w @ y
+    dx, dy = d[:, 0], d[:, 1]
+    # bearings unwrapped about the centre point's (see proposals._assemble)
+    bearing0 = jnp.arctan2(dy[0], dx[0]) - pose[2]
+    bearing = bearing0 + jnp.arctan2(dx[0] * dy - dy[0] * dx, dx[0] * dx + dy[0] * dy)
+    y = jnp.stack([jnp.sqrt(dx * dx + dy * dy), bearing], -1)
+    y_mean = _small.wsum(mean_w, y, axis=0)
     dev = y - y_mean
-    s = jnp.einsum("i,ij,ik->jk", cov_w, dev, dev) + measurement_cov(params, dtype)
-    cross = jnp.einsum("i,ij,ik->jk", cov_w, points - mean, dev)
+    s = _small.weighted_outer(cov_w, dev, dev) + measurement_cov(params, dtype)
+    cross = _small.weighted_outer(cov_w, points - mean, dev)
     s_inv, _ = _small.inv2(s)
-    gain = cross @ s_inv
+    gain = _small.matmul(cross, s_inv)
     nu = jnp.stack([observation[0] - y_mean[0], wrap_angle(observation[1] - y_mean[1])])
-    new_cov, repaired = _small.floor_eigenvalues2(cov - gain @ s @ gain.T, _cov_floor(cov, mean))
-    new_mean = mean + gain @ nu
+    gain_s_gain = _small.matmul(_small.matmul(gain, s), gain.T)
+    new_cov, repaired = _small.floor_eigenvalues2(cov - gain_s_gain, _cov_floor(cov, mean))
+    new_mean = mean + _small.matvec(gain, nu)
     ok = jnp.all(jnp.isfinite(new_mean)) & jnp.all(jnp.isfinite(new_cov))
     return jnp.where(ok, new_mean, mean), jnp.where(ok, new_cov, cov), ok, repaired & ok
 
@@ -289,9 +299,9 @@ def initialise_landmark(pose: Array, observation: Array, params: Params) -> tupl
     points = sigma_points(observation, r_sqrt, params.ut_landmark)
     offset = jnp.asarray(params.sensor_offset, dtype)
     m = jax.vmap(inverse_observe, (None, 0, None))(pose, points, offset)
-    m_mean = mean_w @ m
+    m_mean = _small.wsum(mean_w, m, axis=0)
     dev = m - m_mean
-    cov = jnp.einsum("i,ij,ik->jk", cov_w, dev, dev)
+    cov = _small.weighted_outer(cov_w, dev, dev)
     cov, _ = _small.floor_eigenvalues2(cov, _cov_floor(cov, m_mean))
     ok = jnp.all(jnp.isfinite(m_mean)) & jnp.all(jnp.isfinite(cov))
     return m_mean, cov, ok
@@ -312,6 +322,8 @@ class _ParticleOut(NamedTuple):
     finite: Array
     num_rejected_landmarks: Array
     num_cov_repairs: Array
+    matched: Array  # (k,) matched observations
+    new: Array  # (k,) observations that started a landmark
 
 
 def _particle_step(
@@ -362,8 +374,8 @@ def _particle_step(
 
     # 3b. sampling, the same normals whatever the proposal; 4. weight (eq. 11)
     eps = jax.random.normal(key, (3,), dtype)
-    from_proposal = own.mean + own.sqrt_cov @ eps
-    from_prediction = pred_mean + pred_sqrt @ eps
+    from_proposal = own.mean + _small.matvec(own.sqrt_cov, eps)
+    from_prediction = pred_mean + _small.matvec(pred_sqrt, eps)
     sampled = jnp.where(has_match, from_proposal, jnp.where(has_new, from_prediction, pred_mean))
     sampled = sampled.at[2].set(wrap_angle(sampled[2]))
     reset = params.pose_reset_std * jnp.eye(3, dtype=dtype)
@@ -438,10 +450,20 @@ def _particle_step(
         finite=finite,
         num_rejected_landmarks=rejected,
         num_cov_repairs=jnp.sum(finite & matched & lm_repaired),
+        matched=matched,
+        new=assoc.new,
     )
 
 
 # ----------------------------------------------------------------------- the filter
+
+
+def _disagreement(matched: Array, new: Array, mask: Array) -> Array:
+    """Real observations ``(k,)`` whose decision (matched, new or ignored) is not the
+    same in every particle (``matched``, ``new``: ``(N, k)``)."""
+    decision = matched.astype(jnp.int32) + 2 * new.astype(jnp.int32)
+    differs = jnp.any(decision != decision[:1], axis=0)
+    return jnp.sum(differs & mask).astype(jnp.int32)
 
 
 def _weighted_log_det(log_weights: Array, log_dets: Array, used: Array) -> Array:
@@ -469,8 +491,14 @@ def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array, Arr
 
 
 def _finish(
-    key: Array, state: State, out: _ParticleOut | None, params: Params, config: Config, invalid: tuple[Array, Array]
-) -> tuple[State, Info]:
+    key: Array,
+    state: State,
+    out: _ParticleOut | None,
+    params: Params,
+    config: Config,
+    invalid: tuple[Array, Array],
+    observation_mask: Array,
+) -> tuple[State, Info, Array]:
     dtype = state.pose_means.dtype
     log_w = normalize_log_weights(state.log_weights)
     estimate, cov, weights, best = _summary(state, log_w)
@@ -483,8 +511,10 @@ def _finish(
             log_det_proposal_erb=nan, log_det_proposal_rb=nan, updated=jnp.zeros((), bool),
             num_matched=zero, num_new=zero, num_dropped=izero, local_overflow=izero,
             num_nonfinite_particles=izero, num_rejected_landmarks=izero, num_cov_repairs=izero,
+            association_disagreement=izero,
         )
         resampled = jnp.zeros((), bool)
+        ancestors = jnp.arange(config.num_particles, dtype=jnp.int32)
         new_state = state._replace(log_weights=log_w)
     else:
         extra = dict(
@@ -498,6 +528,7 @@ def _finish(
             num_nonfinite_particles=jnp.sum(~out.finite).astype(jnp.int32),
             num_rejected_landmarks=jnp.sum(out.num_rejected_landmarks).astype(jnp.int32),
             num_cov_repairs=jnp.sum(out.num_cov_repairs).astype(jnp.int32),
+            association_disagreement=_disagreement(out.matched, out.new, observation_mask),
         )
         ancestors, resampled, new_log_w = selective_resample(key, log_w, params.resample_threshold, config.resampler)
         new_state = jax.lax.cond(
@@ -517,9 +548,13 @@ def _finish(
         best_particle=best.astype(jnp.int32),
         num_invalid_controls=invalid[0],
         num_invalid_observations=invalid[1],
+        weight_entropy=-jnp.sum(jnp.where(weights > 0, weights * log_w, 0.0)),
+        num_ancestors=jnp.sum(jnp.zeros(config.num_particles, jnp.int32).at[ancestors].set(1)),
+        num_landmarks_min=jnp.min(state.landmarks.count),
+        num_landmarks_max=jnp.max(state.landmarks.count),
         **extra,
     )
-    return new_state, info
+    return new_state, info, ancestors
 
 
 def clean_inputs(control: Array, observation: Observation) -> tuple[Array, Observation, Array, Array]:
@@ -558,6 +593,15 @@ def step(
         params: traced parameters.
         config: static configuration.
     """
+    new_state, info, _ = step_with_ancestors(key, state, control, observation, params, config)
+    return new_state, info
+
+
+def step_with_ancestors(
+    key: Array, state: State, control: Array, observation: Observation, params: Params, config: Config
+) -> tuple[State, Info, Array]:
+    """:func:`step` that also returns the resampling ancestors ``(N,)`` (the identity
+    when it did not resample), for genealogy diagnostics."""
     dtype = state.pose_means.dtype
     params = cast_params(params, dtype)
     control = jnp.asarray(control, dtype)
@@ -566,19 +610,36 @@ def step(
     k_sample, k_resample = jax.random.split(key)
     particle_keys = jax.random.split(k_sample, config.num_particles)
 
-    def active_step(state):
-        out = jax.vmap(_particle_step, (0, 0, 0, 0, None, None, None, None))(
+    def particles_step(state, observation):
+        return jax.vmap(_particle_step, (0, 0, 0, 0, None, None, None, None))(
             particle_keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation, params, config
         )
+
+    def active_step(state):
+        width = observation.values.shape[0]
+        half = (width + 1) // 2
+        if width < 8:
+            out = particles_step(state, observation)
+        else:
+            # Most scans fill few of the padded observation slots (Victoria Park: 82%
+            # at most 7 of 14); such a scan runs on the first half of the slots. The
+            # result is the same: padding slots are masked out everywhere.
+            def first_half(state):
+                out = particles_step(state, Observation(observation.values[:half], observation.mask[:half]))
+                pad = ((0, 0), (0, width - half))
+                return out._replace(matched=jnp.pad(out.matched, pad), new=jnp.pad(out.new, pad))
+
+            fits = ~jnp.any(observation.mask[half:])
+            out = jax.lax.cond(fits, first_half, lambda s: particles_step(s, observation), state)
         # If every particle failed, the step changes nothing (not even the weights).
         log_weights = jnp.where(
             jnp.any(out.finite), state.log_weights + out.log_weight_increment, state.log_weights
         )
         updated = State(out.pose, out.pose_sqrt, log_weights, out.landmarks)
-        return _finish(k_resample, updated, out, params, config, invalid)
+        return _finish(k_resample, updated, out, params, config, invalid, observation.mask)
 
     def idle_step(state):
-        return _finish(k_resample, state, None, params, config, invalid)
+        return _finish(k_resample, state, None, params, config, invalid, observation.mask)
 
     if not config.skip_stationary:
         return active_step(state)

@@ -117,18 +117,24 @@ def _pose_sigma_sensors(pose_mean: Array, pose_sqrt: Array, params: Params) -> t
     return sensors, poses[:, 2]
 
 
-def _range_bearing(sensor: Array, heading: Array, landmark: Array) -> Array:
-    d = landmark - sensor
-    return jnp.stack([jnp.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2), jnp.arctan2(d[..., 1], d[..., 0]) - heading], -1)
-
-
 def _assemble(sensors: Array, headings: Array, landmark_mean: Array, landmark_chol: Array, gamma: Array) -> Array:
-    y_pose = _range_bearing(sensors, headings, landmark_mean)  # (7, 2)
+    """The 11 predicted observations of one landmark (filterpy order), bearings
+    unwrapped about the centre's: ``b_i = b_0 + atan2(d_0 x d_i, d_0 . d_i) - (h_i - h_0)``
+    for the sensor-to-landmark vectors ``d`` and headings ``h`` (one arctangent per
+    point and no wrapping; equal to ``b_0 + wrap(b_i - b_0)``)."""
     off = gamma * landmark_chol.T
-    y_lm = _range_bearing(sensors[0], headings[0], jnp.concatenate([landmark_mean + off, landmark_mean - off], 0))
-    y = jnp.concatenate([y_pose[:4], y_lm[:2], y_pose[4:], y_lm[2:]], 0)
-    bearing = y[0, 1] + wrap_angle(y[:, 1] - y[0, 1])
-    return jnp.stack([y[:, 0], bearing], -1)
+    zero2 = jnp.zeros((2, 2), landmark_mean.dtype)
+    # points: pose 0-3, landmark +cols, pose 4-6, landmark -cols
+    sensor = jnp.concatenate([sensors[:4], jnp.broadcast_to(sensors[0], (2, 2)), sensors[4:],
+                              jnp.broadcast_to(sensors[0], (2, 2))], 0)
+    landmark = landmark_mean + jnp.concatenate([zero2[:1].repeat(4, 0), off, zero2[:1].repeat(3, 0), -off], 0)
+    dheading = jnp.concatenate([headings[:4] - headings[0], zero2[0], headings[4:] - headings[0], zero2[0]])
+    d = landmark - sensor
+    dx, dy = d[:, 0], d[:, 1]
+    rng = jnp.sqrt(dx * dx + dy * dy)
+    bearing0 = jnp.arctan2(dy[0], dx[0]) - headings[0]
+    bearing = bearing0 + jnp.arctan2(dx[0] * dy - dy[0] * dx, dx[0] * dx + dy[0] * dy) - dheading
+    return jnp.stack([rng, bearing], -1)
 
 
 def sigma_observations(
@@ -171,15 +177,25 @@ def innovation_terms(sigma_obs: Array, observation: Array, params: Params, perfe
         sigma_obs = jnp.where(jnp.asarray(_LANDMARK_POINTS)[:, None], sigma_obs[0], sigma_obs)
     mean_w, cov_w, lam = ut_weights(AUG_DIM, params.ut_update, dtype)
     gamma = jnp.sqrt(AUG_DIM + lam)
-    predicted = mean_w @ sigma_obs
-    dev = sigma_obs - predicted
-    cov = jnp.einsum("i,ij,ik->jk", cov_w, dev, dev) + measurement_cov(params, dtype)
-    cov = 0.5 * (cov + cov.T)
-    pairs = sigma_obs[1 : 1 + POSE_DIM] - sigma_obs[1 + AUG_DIM : 1 + AUG_DIM + POSE_DIM]  # (3, 2)
+    r, b = sigma_obs[..., 0], sigma_obs[..., 1]
+    predicted = jnp.stack([_small.wsum(mean_w, r), _small.wsum(mean_w, b)], -1)
+    dr, db = r - predicted[..., 0, None], b - predicted[..., 1, None]
+    s01 = _small.wsum_product(cov_w, dr, db)
+    cov = jnp.stack(
+        [
+            jnp.stack([_small.wsum_product(cov_w, dr, dr) + params.range_std**2, s01], -1),
+            jnp.stack([s01, _small.wsum_product(cov_w, db, db) + params.bearing_std**2], -1),
+        ],
+        -2,
+    ).astype(dtype)
+    pairs = sigma_obs[..., 1 : 1 + POSE_DIM, :] - sigma_obs[..., 1 + AUG_DIM : 1 + AUG_DIM + POSE_DIM, :]  # (3, 2)
     jac = (gamma * cov_w[1 : 1 + POSE_DIM])[:, None] * pairs  # (3, 2) = G^T
-    residual_cov = cov - jac.T @ jac
-    innovation = jnp.stack([observation[0] - predicted[0], wrap_angle(observation[1] - predicted[1])])
-    return InnovationTerms(predicted, innovation, cov, jac.T, 0.5 * (residual_cov + residual_cov.T))
+    jac_t = jnp.swapaxes(jac, -1, -2)
+    residual_cov = cov - _small.matmul(jac_t, jac)
+    innovation = jnp.stack(
+        [observation[..., 0] - predicted[..., 0], wrap_angle(observation[..., 1] - predicted[..., 1])], -1
+    )
+    return InnovationTerms(predicted, innovation, cov, jac_t, 0.5 * (residual_cov + jnp.swapaxes(residual_cov, -1, -2)))
 
 
 def combine_batch(pose_mean: Array, pose_sqrt: Array, terms: InnovationTerms, mask: Array) -> Proposal:
@@ -190,18 +206,19 @@ def combine_batch(pose_mean: Array, pose_sqrt: Array, terms: InnovationTerms, ma
     z_inv = z_inv * maskf[:, None, None]
     nu = terms.innovation * maskf[:, None]
     g = terms.whitened_jacobian
-    gt_zinv = jnp.einsum("kji,kjl->kil", g, z_inv)  # (k, 3, 2)
-    info = jnp.eye(POSE_DIM, dtype=dtype) + jnp.einsum("kil,klj->ij", gt_zinv, g)
-    c = jnp.einsum("kil,kl->i", gt_zinv, nu)
+    g_t = jnp.swapaxes(g, -1, -2)
+    gt_zinv = _small.matmul(g_t, z_inv)  # (k, 3, 2)
+    info = jnp.eye(POSE_DIM, dtype=dtype) + jnp.sum(_small.matmul(gt_zinv, g), 0)
+    c = jnp.sum(_small.matvec(gt_zinv, nu), 0)
     info_chol = _small.chol3(info)
     info_chol_inv = _small.tril_inv3(info_chol)
-    u = info_chol_inv @ c
-    sqrt_cov = pose_sqrt @ info_chol_inv.T
-    mean = pose_mean + sqrt_cov @ u
+    u = _small.matvec(info_chol_inv, c)
+    sqrt_cov = _small.matmul(pose_sqrt, info_chol_inv.T)
+    mean = pose_mean + _small.matvec(sqrt_cov, u)
     mean = mean.at[2].set(wrap_angle(mean[2]))
     info_logdet = _small.tril_logdet(info_chol)
     log_det_cov = _small.sqrt_logdet3(pose_sqrt) - info_logdet
-    quad = jnp.einsum("ki,kij,kj->", nu, z_inv, nu) - u @ u
+    quad = jnp.sum(_small.quad2(nu, z_inv)) - jnp.sum(u * u)
     num_used = jnp.sum(maskf)
     log_det_s = jnp.sum(z_logdet * maskf) + info_logdet
     log_lik = -0.5 * (quad + log_det_s) - num_used * jnp.log(jnp.asarray(2 * np.pi, dtype))

@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from jaxslam.datasets.geometry import wrap_angle
+from jaxslam.metrics.stats import bisect_increasing
 
 
 def pose_errors(estimates: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -58,14 +59,7 @@ def chi2_cdf(x: float, dof: int) -> float:
 
 def chi2_quantile(p: float, dof: int) -> float:
     """Chi-square quantile for integer ``dof`` (bisection on :func:`chi2_cdf`)."""
-    lo, hi = 0.0, 10.0 * dof + 100.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if chi2_cdf(mid, dof) < p:
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
+    return bisect_increasing(lambda x: chi2_cdf(x, dof), p, 0.0, 10.0 * dof + 100.0)
 
 
 def nees_summary(values: np.ndarray, dof: int = 3, confidence: float = 0.95) -> dict[str, float]:
