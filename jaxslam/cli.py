@@ -28,6 +28,8 @@ EPILOG = """examples:
   jaxslam datasets --inspect robot.bag            topics, types, counts and rates of a ROS bag
   jaxslam run --dataset robot.bag --scan-topic /scan --odom-topic /odom --out runs/robot
   jaxslam plot runs/intel
+  jaxslam calibrate --dataset victoria-park --algorithm erb-upf --out runs/cal
+  jaxslam run --dataset victoria-park --params runs/cal/calibration.json --out runs/vp-cal
 """
 
 
@@ -101,6 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="laser data: ... or this much odometric rotation (angularUpdate; default 0.5, FR079 0)")
     run.add_argument("--temporal-update", type=float, default=None, metavar="S",
                      help="laser data: ... or after this many seconds (temporalUpdate; default -1: off)")
+    run.add_argument("--params", type=Path, default=None, metavar="FILE",
+                     help="noise levels from a `jaxslam calibrate` output (DIR/calibration.json); --set wins")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",
@@ -138,6 +142,10 @@ def build_parser() -> argparse.ArgumentParser:
     ds = sub.add_parser("datasets", help="list known datasets, whether they are found, and where")
     ds.add_argument("--inspect", type=Path, default=None, metavar="BAG",
                     help="list the topics of a ROS bag: types, message counts, rates")
+
+    from jaxslam.calibrate.cli import add_parser as add_calibrate_parser
+
+    add_calibrate_parser(sub, _positive_int, _nonneg_int)
 
     pl = sub.add_parser("plot", help="re-draw the figures of an output folder from its files")
     pl.add_argument("folder", type=Path, help="output folder written by `jaxslam run`")
@@ -202,7 +210,15 @@ def cmd_plot(args) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "evaluate": cmd_evaluate, "datasets": cmd_datasets, "plot": cmd_plot}
+def cmd_calibrate(args) -> int:
+    from jaxslam import runs
+    from jaxslam.calibrate.cli import run as run_calibrate
+
+    print(json.dumps(run_calibrate(args), indent=2, default=runs._json_default))
+    return 0
+
+
+COMMANDS = {"calibrate": cmd_calibrate, "run": cmd_run, "evaluate": cmd_evaluate, "datasets": cmd_datasets, "plot": cmd_plot}
 
 
 def main(argv: list[str] | None = None) -> int:

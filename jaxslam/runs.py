@@ -471,9 +471,14 @@ def run_from_args(args) -> dict[str, Any] | None:
                    checkpoint_every=args.checkpoint_every, resume=True, **run_args)
     if args.out is None:
         raise RunError("--out is required (the folder the outputs go to)")
+    overrides = _overrides_dict(args.overrides)
+    if getattr(args, "params", None) is not None:
+        from jaxslam.calibrate.cli import load_params_file
+
+        overrides = {**load_params_file(args.params), **overrides}
     return run(
         out=args.out, dataset=args.dataset, algorithm=args.algorithm, particles=args.particles, seed=args.seed,
-        max_steps=args.max_steps, overrides=_overrides_dict(args.overrides), progress=not args.no_progress,
+        max_steps=args.max_steps, overrides=overrides, progress=not args.no_progress,
         chunk=args.chunk, float64=args.float64, plots=not args.no_plots, checkpoint_every=args.checkpoint_every,
         keyframes={"linear": args.linear_update, "angular": args.angular_update, "temporal": args.temporal_update},
         bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,

@@ -150,3 +150,41 @@ def selective_resample(
     uniform = jnp.full_like(normalized, -jnp.log(jnp.asarray(n, normalized.dtype)))
     new_log_weights = jnp.where(resampled, uniform, normalized)
     return ancestors, resampled, new_log_weights
+
+
+def stop_gradient_log_weights(log_weights: Array, ancestors: Array) -> Array:
+    r"""Log-weights after resampling that carry the score (Scibior & Wood 2021).
+
+    ``-log N + logw[a] - stop_gradient(logw[a])``: the value is exactly the uniform
+    ``-log N`` (the forward pass does not change), the gradient is that of the
+    resampled particles' own log-weights, so the gradient of the log-likelihood
+    estimate is the Fisher-identity score estimate. A non-finite ``logw[a]``
+    (a particle that should not be drawn) contributes no gradient rather than NaN.
+
+    Args:
+        log_weights: ``(N,)`` normalised log-weights before resampling.
+        ancestors: ``(N,)`` indices drawn from them.
+    """
+    n = log_weights.shape[0]
+    chosen = log_weights[ancestors]
+    safe = jnp.where(jnp.isfinite(chosen), chosen, 0.0)
+    return -jnp.log(jnp.asarray(n, log_weights.dtype)) + (safe - jax.lax.stop_gradient(safe))
+
+
+def selective_resample_stop_gradient(
+    key: Array,
+    log_weights: Array,
+    threshold: Array | float = 0.5,
+    method: str | Resampler = "systematic",
+) -> tuple[Array, Array, Array]:
+    """:func:`selective_resample` with stop-gradient resampling (Scibior & Wood 2021).
+
+    The same ancestors, flag and forward values as :func:`selective_resample` (bit for
+    bit); where it resampled, the new log-weights are
+    :func:`stop_gradient_log_weights`, so that gradients of the log marginal
+    likelihood estimate flow through resampling. The index draw itself carries no
+    gradient (it is discrete).
+    """
+    ancestors, resampled, new_log_weights = selective_resample(key, log_weights, threshold, method)
+    carried = stop_gradient_log_weights(normalize_log_weights(log_weights), ancestors)
+    return ancestors, resampled, jnp.where(resampled, carried, new_log_weights)

@@ -1,0 +1,216 @@
+"""Noise calibration by differentiating the landmark filter (issue #16).
+
+Parts (``--part``, repeatable; default all):
+
+* ``sim``: simulator recovery. The simulator's true noise levels, then starting from
+  all four noise levels 3x too large and 3x too small, ``calibrate`` on the first
+  ``--sim-window`` scans; reports the recovered / true ratios.
+* ``time``: the time of one value-and-gradient evaluation of ``log Z`` on the first
+  ``--time-scans`` Victoria Park scans with ``--time-particles`` particles (1 filter),
+  compilation apart.
+* ``vp``: Victoria Park: calibrate on the first half (the first ``--vp-window`` scans
+  of it), then run the whole log with the paper's noise and with the calibrated noise
+  (``--vp-particles`` particles, ``--vp-seeds`` seeds, one ensemble each) and compare
+  the second half's log-likelihood estimate and GPS error.
+
+Writes ``benchmarks/results/calibration.json`` and ``calibration_*.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from _common import RESULTS, machine_info, print_table, write_json  # noqa: E402
+
+from jaxslam.calibrate import landmark as L  # noqa: E402
+from jaxslam.calibrate.fit import calibrate, value_and_grads  # noqa: E402
+from jaxslam.feature.experiment import params_for  # noqa: E402
+from jaxslam.feature.params import Config  # noqa: E402
+
+NAMES = L.NOISE_NAMES
+
+
+def part_sim(args) -> dict:
+    from jaxslam.datasets.landmark_sim import simulate
+
+    seq = simulate(seed=args.seed, num_steps=args.sim_window)
+    true = params_for(seq)
+    truth = {n: float(getattr(true, n)) for n in NAMES}
+    runs = []
+    for factor in (3.0, 1.0 / 3.0):
+        start = {n: v * factor for n, v in truth.items()}
+        res = calibrate(seq, "erb-upf", particles=args.sim_particles, filters=args.filters, steps=args.sim_steps,
+                        learning_rate=args.learning_rate, params=start, seed=args.seed,
+                        config=dict(capacity=96, local_size=48))
+        ratios = {n: res.after[n] / truth[n] for n in NAMES}
+        runs.append({"start_factor": factor, "after": res.after, "ratio_to_true": ratios,
+                     "within_20pct": {n: abs(r - 1) <= 0.2 for n, r in ratios.items()},
+                     "log_likelihood": res.log_likelihood, "parameter_trajectory": res.trajectory,
+                     "gradient_variance": res.gradient_variance, "compile_s": res.compile_s, "time_s": res.wall_s})
+        print(f"start x{factor:.3g}: " + ", ".join(f"{n} {ratios[n]:.3f}" for n in NAMES), flush=True)
+    return {"truth": truth, "window": args.sim_window, "particles": args.sim_particles, "filters": args.filters,
+            "steps": args.sim_steps, "learning_rate": args.learning_rate, "runs": runs}
+
+
+def part_time(args) -> dict:
+    from jaxslam.datasets import victoria_park
+
+    seq = victoria_park.load_sequence(max_steps=args.time_scans)
+    params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params_for(seq))
+    cfg = Config(num_particles=args.time_particles)
+    program = value_and_grads(cfg)
+    keys = jax.random.split(jax.random.PRNGKey(0), 1)
+    theta = jnp.asarray(L.log_noise_of(params), jnp.float32)
+    data = (jnp.asarray(seq.controls, jnp.float32), jnp.asarray(seq.observations, jnp.float32),
+            jnp.asarray(seq.obs_mask), jnp.zeros(3, jnp.float32))
+    t0 = time.perf_counter()
+    compiled = program.lower(keys, theta, params, *data).compile()
+    compile_s = time.perf_counter() - t0
+    times = []
+    for i in range(args.time_repeats):
+        t0 = time.perf_counter()
+        values, grads = jax.block_until_ready(compiled(jax.random.split(jax.random.PRNGKey(i), 1), theta, params,
+                                                       *data))
+        times.append(time.perf_counter() - t0)
+    # The forward pass alone, for the ratio.
+    fwd = jax.jit(lambda k, th: jnp.mean(L.log_likelihoods(k, L.with_log_noise(params, th), cfg, *data,
+                                                           checkpoint=False)))
+    fwd(keys[0], theta).block_until_ready()
+    t0 = time.perf_counter()
+    fwd(keys[0], theta).block_until_ready()
+    forward_s = time.perf_counter() - t0
+    print(f"one gradient step, {seq.controls.shape[0]} scans, {args.time_particles} particles: "
+          f"{np.median(times):.2f} s (forward {forward_s:.2f} s, compile {compile_s:.1f} s)", flush=True)
+    return {"scans": int(seq.controls.shape[0]), "particles": args.time_particles, "gradient_step_s": times,
+            "gradient_step_median_s": float(np.median(times)), "forward_s": forward_s, "compile_s": compile_s,
+            "log_likelihood_per_scan": float(values[0]), "gradient": np.asarray(grads[0]).tolist()}
+
+
+def _evaluate(seq, params, args, half) -> dict:
+    from jaxslam.feature.ensemble import run_landmark_ensemble
+    from jaxslam.metrics.gps import gps_error
+
+    seeds = tuple(range(args.vp_seeds))
+    ens = run_landmark_ensemble(seq, "erb-upf", particles=args.vp_particles, seeds=seeds, params=params)
+    cfg = ens.config
+    p = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params)
+    data = (jnp.asarray(seq.controls, jnp.float32), jnp.asarray(seq.observations, jnp.float32),
+            jnp.asarray(seq.obs_mask), jnp.zeros(3, jnp.float32))
+    ll_fn = jax.jit(jax.vmap(lambda k: L.log_likelihoods(k, p, cfg, *data, checkpoint=False)))
+    incs = np.asarray(ll_fn(jnp.stack([jax.random.PRNGKey(s) for s in seeds])))
+    rows = []
+    second = seq.times >= seq.times[half]
+    for i, seed in enumerate(seeds):
+        err = gps_error(seq.times, ens.trajectories[i], seq.gps_times, seq.gps_xy)
+        later = err["used"] & (seq.gps_times >= seq.times[half])
+        rows.append({"seed": seed, "heldout_log_likelihood_per_scan": float(incs[i][second].mean()),
+                     "heldout_gps_mean_m": float(np.nanmean(err["errors_m"][later])),
+                     "gps_mean_m": float(err["gps_mean_m"])})
+    return {"per_seed": rows,
+            "heldout_log_likelihood_per_scan": float(np.mean([r["heldout_log_likelihood_per_scan"] for r in rows])),
+            "heldout_gps_mean_m": float(np.mean([r["heldout_gps_mean_m"] for r in rows])),
+            "heldout_gps_mean_sd_m": float(np.std([r["heldout_gps_mean_m"] for r in rows], ddof=1))
+            if len(rows) > 1 else None}
+
+
+def part_vp(args) -> dict:
+    from jaxslam.datasets import victoria_park
+
+    seq = victoria_park.load_sequence()
+    half = seq.controls.shape[0] // 2
+    res = calibrate(seq, "erb-upf", particles=args.vp_cal_particles, filters=args.filters, steps=args.vp_steps,
+                    learning_rate=args.learning_rate, window=min(args.vp_window, half), seed=args.seed)
+    print("calibrated:", res.after, flush=True)
+    paper = params_for(seq)
+    calibrated = params_for(seq, **res.after)
+    out = {"calibration": {"window": res.window, "particles": args.vp_cal_particles, "filters": args.filters,
+                           "steps": args.vp_steps, "before": res.before, "after": res.after,
+                           "log_likelihood": res.log_likelihood, "gradient_variance": res.gradient_variance,
+                           "compile_s": res.compile_s, "time_s": res.wall_s},
+           "half_scan": int(half), "particles": args.vp_particles, "seeds": args.vp_seeds}
+    for name, params in (("paper", paper), ("calibrated", calibrated)):
+        out[name] = _evaluate(seq, params, args, half)
+        print(name, out[name]["heldout_log_likelihood_per_scan"], out[name]["heldout_gps_mean_m"], flush=True)
+    return out
+
+
+def plot(payload: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxslam.plotting import save
+
+    if "sim" in payload:
+        sim = payload["sim"]
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        for run in sim["runs"]:
+            axes[0].plot(run["log_likelihood"], label=f"start x{run['start_factor']:.3g}")
+            path = np.asarray(run["parameter_trajectory"])
+            for i, n in enumerate(NAMES):
+                axes[1].plot(path[:, i] / sim["truth"][n], color=f"C{i}",
+                             ls="-" if run["start_factor"] > 1 else "--", label=n if run["start_factor"] > 1 else None)
+        axes[0].set_xlabel("Adam step")
+        axes[0].set_ylabel("log Z-hat / scan")
+        axes[0].legend()
+        axes[1].axhspan(0.8, 1.2, color="0.9")
+        axes[1].set_yscale("log")
+        axes[1].set_xlabel("Adam step")
+        axes[1].set_ylabel("value / true value")
+        axes[1].legend(fontsize=8)
+        axes[1].set_title("simulator recovery (solid: from 3x, dashed: from 1/3x)")
+        fig.tight_layout()
+        save(fig, RESULTS / "calibration_sim.png")
+    if "vp" in payload:
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.plot(payload["vp"]["calibration"]["log_likelihood"])
+        ax.set_xlabel("Adam step")
+        ax.set_ylabel("log Z-hat / scan")
+        ax.set_title("Victoria Park, first half")
+        fig.tight_layout()
+        save(fig, RESULTS / "calibration_vp.png")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--part", action="append", choices=["sim", "time", "vp"], default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--filters", type=int, default=4)
+    ap.add_argument("--learning-rate", type=float, default=0.1)
+    ap.add_argument("--sim-window", type=int, default=60)
+    ap.add_argument("--sim-particles", type=int, default=20)
+    ap.add_argument("--sim-steps", type=int, default=60)
+    ap.add_argument("--time-scans", type=int, default=1000)
+    ap.add_argument("--time-particles", type=int, default=100)
+    ap.add_argument("--time-repeats", type=int, default=2)
+    ap.add_argument("--vp-window", type=int, default=3615)
+    ap.add_argument("--vp-cal-particles", type=int, default=20)
+    ap.add_argument("--vp-steps", type=int, default=50)
+    ap.add_argument("--vp-particles", type=int, default=100)
+    ap.add_argument("--vp-seeds", type=int, default=5)
+    ap.add_argument("--name", default="calibration")
+    args = ap.parse_args()
+    parts = args.part or ["sim", "time", "vp"]
+    payload = {"machine": machine_info(), "args": vars(args)}
+    for part in parts:
+        payload[part] = {"sim": part_sim, "time": part_time, "vp": part_vp}[part](args)
+        write_json(args.name, payload)
+    if "sim" in payload:
+        rows = [{"start": f"x{r['start_factor']:.3g}", **{n: round(r["ratio_to_true"][n], 3) for n in NAMES}}
+                for r in payload["sim"]["runs"]]
+        print_table(rows, ["start"] + list(NAMES))
+    plot(payload)
+
+
+if __name__ == "__main__":
+    main()

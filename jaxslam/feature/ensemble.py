@@ -1,0 +1,151 @@
+"""The same landmark filter for many seeds as one compiled program.
+
+:func:`run_landmark_ensemble` runs RB-UPF or ERB-UPF on one sequence for every seed
+of ``seeds`` at once: :func:`jaxslam.feature.filter.init` and a ``lax.scan`` of
+:func:`jaxslam.feature.filter.step` are ``vmap``-ed over the seeds' keys. Seed ``s``
+uses exactly the keys of the single-seed run (``PRNGKey(s)`` and
+:func:`jaxslam.feature.filter.step_keys`), so member ``i`` is the run of
+``seeds[i]``. The compiled program is cached per static configuration
+(:class:`~jaxslam.feature.params.Config`, dtype, shapes): a sweep over ``Params`` or
+seeds of the same count never recompiles, because ``Params`` are traced.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxslam.feature import filter as feature_filter
+from jaxslam.feature.experiment import ALGORITHMS, params_for
+from jaxslam.feature.params import Config, Params
+
+
+@dataclasses.dataclass
+class LandmarkEnsembleResult:
+    """Outcome of :func:`run_landmark_ensemble` (host arrays, leading axis = seed).
+
+    Attributes:
+        algorithm, particles, seeds, steps: what was run.
+        trajectories: ``(S, T, 3)`` weighted mean pose after each step.
+        info: every :class:`~jaxslam.feature.filter.Info` field, ``(S, T, ...)``.
+        state: the final :class:`~jaxslam.feature.filter.State` of every seed.
+        wall_s: run time after compilation [s] (all seeds together).
+        compile_s: compilation time [s] (0 when the program was cached).
+        params: the parameters used.
+        config: the static configuration used.
+    """
+
+    algorithm: str
+    particles: int
+    seeds: tuple[int, ...]
+    steps: int
+    trajectories: np.ndarray
+    info: dict[str, np.ndarray]
+    state: Any
+    wall_s: float
+    compile_s: float
+    params: Params
+    config: Config
+
+
+def _one_seed(key, params, controls, observations, obs_mask, initial_pose, config):
+    state = feature_filter.init(key, params, config, initial_pose)
+    keys = feature_filter.step_keys(key, controls.shape[0])
+
+    def body(s, xs):
+        k, u, z, m = xs
+        return feature_filter.step(k, s, u, feature_filter.Observation(z, m), params, config)
+
+    return jax.lax.scan(body, state, (keys, controls, observations, obs_mask))
+
+
+_PROGRAMS: dict[Config, Any] = {}
+_COMPILED: dict[Any, Any] = {}
+
+
+def ensemble_program(config: Config):
+    """The jitted ``(keys (S,), params, controls, observations, obs_mask, initial_pose)
+    -> (final states, infos)`` for ``config``, built once per configuration."""
+    if config not in _PROGRAMS:
+        batched = jax.vmap(_one_seed, (0, None, None, None, None, None, None))
+        _PROGRAMS[config] = jax.jit(lambda *args: batched(*args, config))
+    return _PROGRAMS[config]
+
+
+def seed_keys(seeds: Sequence[int]) -> jax.Array:
+    """``PRNGKey(s)`` for each seed, stacked: the keys the single-seed runs use."""
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("seeds must not be empty")
+    if any(s < 0 for s in seeds):
+        raise ValueError(f"seeds must be >= 0, got {seeds}")
+    return jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+
+
+def run_landmark_ensemble(
+    sequence: Any,
+    algorithm: str = "erb-upf",
+    particles: int = 100,
+    seeds: Sequence[int] = (0, 1, 2, 3, 4),
+    params: Params | dict[str, Any] | None = None,
+    config: dict[str, Any] | None = None,
+    dtype: Any = jnp.float32,
+) -> LandmarkEnsembleResult:
+    """Run RB-UPF or ERB-UPF over a whole sequence for every seed as one program.
+
+    Args:
+        sequence: Victoria Park or simulator sequence (``controls``, ``observations``,
+            ``obs_mask``; ``meta`` as for :func:`~jaxslam.feature.experiment.params_for`).
+        algorithm: ``"erb-upf"`` or ``"rb-upf"`` (or ``"erb"``/``"rb"``).
+        particles: particles per filter.
+        seeds: PRNG seeds; member ``i`` equals
+            ``run_landmark_slam(sequence, seed=seeds[i], ...)``.
+        params: a full :class:`Params`, or a dict of overrides on ``params_for``.
+        config: overrides of the :class:`Config` fields.
+        dtype: float dtype of the filters.
+
+    Memory grows linearly with ``len(seeds)`` (every seed holds its particles' maps).
+    """
+    if algorithm not in ALGORITHMS:
+        raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}")
+    if not isinstance(params, Params):
+        params = params_for(sequence, **(params or {}))
+    cfg = Config(num_particles=particles, proposal=ALGORITHMS[algorithm], **(config or {}))
+    keys = seed_keys(seeds)
+    args = (
+        keys,
+        feature_filter.cast_params(params, dtype),
+        jnp.asarray(sequence.controls, dtype),
+        jnp.asarray(sequence.observations, dtype),
+        jnp.asarray(sequence.obs_mask, bool),
+        jnp.zeros(3, dtype),
+    )
+    signature = (cfg, jax.tree_util.tree_map(lambda x: (jnp.shape(x), jnp.result_type(x)), args))
+    compile_s = 0.0
+    if signature not in _COMPILED:
+        start = time.perf_counter()
+        _COMPILED[signature] = ensemble_program(cfg).lower(*args).compile()
+        compile_s = time.perf_counter() - start
+    compiled = _COMPILED[signature]
+    start = time.perf_counter()
+    state, infos = jax.block_until_ready(compiled(*args))
+    wall_s = time.perf_counter() - start
+    info = {name: np.asarray(value) for name, value in infos._asdict().items()}
+    return LandmarkEnsembleResult(
+        algorithm=algorithm,
+        particles=particles,
+        seeds=tuple(int(s) for s in seeds),
+        steps=int(np.shape(sequence.controls)[0]),
+        trajectories=info["pose_estimate"],
+        info=info,
+        state=jax.tree_util.tree_map(np.asarray, state),
+        wall_s=wall_s,
+        compile_s=compile_s,
+        params=jax.tree_util.tree_map(lambda x: np.asarray(x).tolist(), params),
+        config=cfg,
+    )

@@ -1,0 +1,51 @@
+"""``jaxslam calibrate`` and ``jaxslam run --params``."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from jaxslam.calibrate.cli import load_params_file
+from jaxslam.cli import main
+from jaxslam.datasets.paths import DataFormatError
+from jaxslam.runs import RunError
+
+
+def test_params_file_errors(tmp_path):
+    with pytest.raises(RunError, match="no such file"):
+        load_params_file(tmp_path / "missing.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(DataFormatError, match="not valid JSON"):
+        load_params_file(bad)
+    wrong = tmp_path / "wrong.json"
+    wrong.write_text(json.dumps({"params_after": {"range_std": "x"}}))
+    with pytest.raises(DataFormatError, match="params_after"):
+        load_params_file(wrong)
+    good = tmp_path / "good.json"
+    good.write_text(json.dumps({"params_after": {"range_std": 0.5}}))
+    assert load_params_file(good) == {"range_std": 0.5}
+
+
+def test_grid_algorithm_is_refused(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["calibrate", "--algorithm", "srupf-gm", "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    assert "landmark filters" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_calibrate_then_run_with_params(tmp_path):
+    out = tmp_path / "cal"
+    assert main(["calibrate", "--out", str(out), "--particles", "4", "--filters", "2", "--steps", "3",
+                 "--window", "12", "--learning-rate", "0.1"]) == 0
+    payload = json.loads((out / "calibration.json").read_text())
+    assert len(payload["log_likelihood"]) == 3
+    assert (out / "calibration.png").exists()
+    assert payload["params_after"] != payload["params_before"]
+    run_out = tmp_path / "run"
+    assert main(["run", "--out", str(run_out), "--particles", "4", "--max-steps", "12", "--no-plots",
+                 "--no-progress", "--params", str(out / "calibration.json")]) == 0
+    summary = json.loads((run_out / "summary.json").read_text())
+    assert summary["overrides"] == payload["params_after"]
