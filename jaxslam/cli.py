@@ -111,6 +111,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="steps per compiled chunk (progress-bar granularity)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    run.add_argument("--cache-dir", type=Path, default=None, metavar="DIR",
+                     help="JAX persistent compilation cache folder (default: $JAXSLAM_CACHE_DIR, else "
+                          "$XDG_CACHE_HOME/jaxslam/jax or ~/.cache/jaxslam/jax)")
+    run.add_argument("--no-cache", action="store_true",
+                     help="do not use the compilation cache (same as JAXSLAM_CACHE_DIR=off)")
 
     ev = sub.add_parser("evaluate", help="score a TUM trajectory (relations metric or GPS error)",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -144,6 +149,13 @@ def cmd_datasets(_args) -> int:
 
 def cmd_run(args) -> int:
     from jaxslam import runs
+    from jaxslam.cache import enable_compilation_cache
+
+    if not args.list_params:
+        try:
+            enable_compilation_cache("off" if args.no_cache else args.cache_dir)
+        except OSError as err:
+            raise CliError(str(err)) from None
 
     summary = runs.run_from_args(args)
     if summary is not None:

@@ -151,7 +151,9 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.trajectory_io import write_tum
 
+    loading = time.perf_counter()
     sequence = load_landmark_sequence(info, max_steps, seed)
+    load_s = time.perf_counter() - loading
     result = run_landmark_slam(
         sequence, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
         progress=progress, chunk=chunk or 512, dtype=dtype, checkpoint=checkpoint,
@@ -161,7 +163,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
         "steps": result.steps, "wall_s": result.wall_s, "compile_s": result.compile_s,
         "steps_per_s": result.steps / result.wall_s if result.wall_s > 0 else None,
         "resamplings": result.resamplings, "landmarks": result.landmarks,
-        "dtype": np.dtype(dtype).name,
+        "dtype": np.dtype(dtype).name, "load_s": load_s,
     }
     finite = bool(np.all(np.isfinite(result.trajectory)))
     summary["finite"] = finite
@@ -197,6 +199,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
         reference_xy = sequence.true_poses[:, :2]
         true_landmarks = sequence.landmarks
         ref_label = "ground truth"
+    writing = time.perf_counter()
     write_tum(out / "trajectory.tum", result.times, result.trajectory,
               comment=f"jaxslam {algorithm} on {info.name}, {particles} particles, seed {seed}")
     with open(out / "landmarks.csv", "w", newline="") as fh:
@@ -214,6 +217,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
         weight_variance=result.info.get("weight_variance", np.zeros(0)),
         title=f"{algorithm}, {info.name}, {particles} particles",
     )
+    summary["output_s"] = time.perf_counter() - writing
     return summary
 
 
@@ -226,6 +230,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     from jaxslam.metrics.trajectory_io import write_tum
 
     name = info.name if info is not None else str(path)
+    loading = time.perf_counter()
     if info is not None and info.name == "sim-laser":
         from jaxslam.datasets import laser_sim
 
@@ -234,6 +239,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         from jaxslam.datasets.carmen import load_dataset_log
 
         log = load_dataset_log(info.name if info is not None else str(path))
+    load_s = time.perf_counter() - loading
     result = grid_experiment.run_grid_slam(
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
         progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
@@ -248,10 +254,12 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name,
         "finite": bool(np.all(np.isfinite(result.trajectory))),
-        "log_stats": getattr(log, "stats", {}),
+        "log_stats": getattr(log, "stats", {}), "load_s": load_s,
     }
+    writing = time.perf_counter()
     write_tum(out / "trajectory.tum", result.scan_times, result.trajectory,
               comment=f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}")
+    output_s = time.perf_counter() - writing
     relations = info.relations_path() if info is not None else None
     if relations is not None:
         from jaxslam.metrics.relations import load_relations, relations_metric
@@ -263,6 +271,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         summary.update({"pos_err_mean_m": float(errors.mean()), "pos_err_max_m": float(errors.max())})
     from jaxslam.grid.export import save_map
 
+    writing = time.perf_counter()
     save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
     np.savez_compressed(
         out / "arrays.npz", kind="laser", times=result.scan_times, trajectory=result.trajectory,
@@ -270,6 +279,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         ess=result.info["ess"], resampled=result.info["resampled"], particles=particles,
         title=f"{algorithm}, {name}, {particles} particles",
     )
+    summary["output_s"] = output_s + time.perf_counter() - writing
     return summary
 
 
@@ -344,20 +354,29 @@ def run(
             raise RunError(f"--resume: no checkpoint in {str(out)!r} (run with --checkpoint-every N first)")
     if not resume:
         write_json(out / "run.json", run_args)
+    from jaxslam.cache import CompileCounter
+
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
     if kind == "laser":
         args = (info, path) + args[1:]
-    summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}))
+    with CompileCounter() as compilations:
+        summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}))
     summary["resumed"] = bool(resume)
     summary["overrides"] = overrides
-    summary["total_s"] = time.time() - started
     summary["jaxslam_version"] = __import__("jaxslam").__version__
     summary["jax_version"] = jax.__version__
-    write_json(out / "summary.json", summary)
+    # XLA programs compiled or loaded from the persistent cache (jaxslam.cache)
+    summary["compilations"] = compilations.as_dict()
+    summary["cache_dir"] = jax.config.jax_compilation_cache_dir
+    # load_s, output_s: reading the data; writing the files and figures (seconds)
+    writing = time.perf_counter()
     if plots:
         replot(out)
+    summary["output_s"] = summary.get("output_s", 0.0) + time.perf_counter() - writing
+    summary["total_s"] = time.time() - started
+    write_json(out / "summary.json", summary)
     return summary
 
 
