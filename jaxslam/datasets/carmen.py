@@ -394,56 +394,145 @@ def _param_float(
         return None
 
 
-def load_carmen(
-    path: os.PathLike | str,
-    *,
-    on_error: str = "raise",
-    max_range: float | None = None,
-    laser_offset: tuple[float, float, float] | np.ndarray | None = None,
-    mixed_geometry: str = "raise",
-    max_backstep: float = 1.0,
-    message: str | None = None,
-) -> CarmenLog:
-    """Read a CARMEN log (plain or gzipped) into a :class:`CarmenLog`.
+@dataclasses.dataclass
+class _Lines:
+    """What the line readers collect: scans in file order (``ranges`` NaN-padded to
+    the longest scan), ODOM readings and PARAMs (name -> (value text, line))."""
 
-    Args:
-        path: the log file; gzip is detected from its first bytes.
-        on_error: ``"raise"`` (default) raises :class:`DataFormatError` on the first
-            bad line; ``"skip"`` drops bad lines and counts them in ``stats``.
-        max_range: range limit in m. Default: the ROBOTLASER1 line's own field, else
-            PARAM ``robot_front_laser_max``, else :data:`DEFAULT_FLASER_MAX_RANGE`.
-        laser_offset: ``(x, y, theta)`` of the laser in the robot frame. Default: for
-            FLASER logs the ``robot_frontlaser_*offset`` PARAMs if logged; otherwise
-            the median of ``odom_pose^-1 (+) laser_pose`` over the scans. Scans whose
-            poses disagree with it by more than 1 mm / 1 mrad are counted in
-            ``stats["laser_offset_mismatch_scans"]``.
-        mixed_geometry: ``"raise"`` (default) if the beam geometry changes between
-            scans; ``"pad"`` pads short scans with NaN (``valid`` False) to the
-            longest and puts interleaved start angles in ``angle_offsets``.
-        max_backstep: scan timestamps may go back by up to this many seconds
-            (counted in ``stats["backwards_timestamps"]``); a larger step is a bad line.
-        message: ``"FLASER"`` or ``"ROBOTLASER1"``; default: the first scan type in
-            the file. Lines of the other type are counted in
-            ``stats["other_scan_messages"]``.
+    scan_type: bytes
+    ranges: np.ndarray
+    geometries: list[tuple]
+    laser: np.ndarray
+    robot: np.ndarray
+    ipc: np.ndarray
+    logger: np.ndarray
+    lines: np.ndarray
+    odom: np.ndarray
+    odom_times: np.ndarray
+    params: dict[str, tuple[str, int]]
+    stats: dict[str, int] = dataclasses.field(default_factory=dict)
 
-    Returns:
-        The log's scans, poses, masks and counters.
 
-    Raises:
-        DataFormatError: malformed input, as described in the module docstring.
-        FileNotFoundError: ``path`` does not exist.
+def _numeric_rows(rows: list[bytes], columns: int) -> np.ndarray | None:
+    """``rows`` of whitespace-separated numbers as a ``(len(rows), columns)`` float64
+    array (NumPy's C text parser), or None if any row is not exactly ``columns``
+    numbers."""
+    if not rows:
+        return np.zeros((0, columns))
+    try:
+        values = np.loadtxt(
+            b"\n".join(rows).decode("latin-1").split("\n"),
+            dtype=np.float64, comments=None, ndmin=2,
+        )
+    except ValueError:
+        return None
+    if values.shape != (len(rows), columns):
+        return None
+    return values
+
+
+def _read_lines_fast(text: bytes, scan_type: bytes | None, max_backstep: float) -> _Lines | None:
+    """The common case in bulk: a FLASER log with one beam count and no bad line.
+
+    Lines are sorted by message type with one cheap split each; the numbers of all
+    FLASER lines, and of all ODOM lines, are then parsed at once by NumPy (the host
+    name, the one text field, is cut out first). Anything this path does not handle
+    exactly as :func:`_read_lines_slow` would (ROBOTLASER1 scans, several beam counts,
+    any malformed or non-finite field, a timestamp going back more than
+    ``max_backstep``) returns None, and the caller reads the file line by line
+    instead, so the messages, skips and counts are the reference reader's.
     """
-    if on_error not in ("raise", "skip"):
-        raise ValueError(f"on_error must be 'raise' or 'skip', got {on_error!r}")
-    if mixed_geometry not in ("raise", "pad"):
-        raise ValueError(f"mixed_geometry must be 'raise' or 'pad', got {mixed_geometry!r}")
-    if message not in (None, "FLASER", "ROBOTLASER1"):
-        raise ValueError(f"message must be 'FLASER' or 'ROBOTLASER1', got {message!r}")
-    path = Path(path)
-    text = _read_bytes(path)
-    collector = _Collector(path, on_error)
-    scan_type = None if message is None else message.encode()
+    stats: dict[str, int] = {}
+    params: dict[str, tuple[str, int]] = {}
+    scan_rows: list[bytes] = []
+    scan_lines: list[int] = []
+    count_tokens: set[bytes] = set()
+    odom_rows: list[bytes] = []
+    try:
+        for line_number, raw in enumerate(text.split(b"\n"), start=1):
+            parts = raw.split(None, 2)
+            if not parts:
+                continue
+            head = parts[0]
+            if head.startswith(b"#"):
+                continue
+            if head in (b"FLASER", b"ROBOTLASER1"):
+                if scan_type is None:
+                    scan_type = head
+                if head != scan_type:
+                    stats["other_scan_messages"] = stats.get("other_scan_messages", 0) + 1
+                    continue
+                if head != b"FLASER":
+                    return None
+                # count, then ranges + 6 pose numbers + ipc_ts; host; logger_ts
+                body, _host, logger = parts[2].rsplit(None, 2)
+                count_tokens.add(parts[1])
+                scan_rows.append(parts[1] + b" " + body + b" " + logger)
+                scan_lines.append(line_number)
+            elif head == b"ODOM":
+                body, _host, logger = raw.split(None, 1)[1].rsplit(None, 2)
+                odom_rows.append(body + b" " + logger)
+            elif head == b"PARAM":
+                name, value = _parse_param(raw.split())
+                params[name] = (value, line_number)
+            else:
+                stats["unknown_messages"] = stats.get("unknown_messages", 0) + 1
+                key = f"unknown:{_text(head[:32])}"
+                stats[key] = stats.get(key, 0) + 1
+    except (ValueError, IndexError, _LineError):
+        return None
+    if not scan_rows or len(count_tokens) != 1:
+        return None
+    token = count_tokens.pop()
+    try:
+        num_beams = int(token)
+    except ValueError:
+        return None
+    if num_beams < 1:
+        return None
+    scans = _numeric_rows(scan_rows, num_beams + 9)
+    odom = _numeric_rows(odom_rows, 8)
+    if scans is None or odom is None:
+        return None
+    ranges, poses, stamps = scans[:, 1 : 1 + num_beams], scans[:, 1 + num_beams : 7 + num_beams], scans[:, -2:]
+    if not (np.isfinite(poses).all() and np.isfinite(stamps).all()):
+        return None
+    if not (np.isfinite(odom[:, :3]).all() and np.isfinite(odom[:, -2:]).all()):
+        return None
+    steps = np.diff(stamps[:, 0])
+    if np.any(steps < -max_backstep):
+        return None
+    if np.any(steps < 0):
+        stats["backwards_timestamps"] = int(np.sum(steps < 0))
+    odom_steps = np.diff(odom[:, -2])
+    if np.any(odom_steps < 0):
+        stats["odom_backwards_timestamps"] = int(np.sum(odom_steps < 0))
+    return _Lines(
+        scan_type=scan_type,
+        ranges=np.ascontiguousarray(ranges),
+        geometries=[(num_beams,)] * scans.shape[0],
+        laser=np.ascontiguousarray(poses[:, :3]),
+        robot=np.ascontiguousarray(poses[:, 3:]),
+        ipc=np.ascontiguousarray(stamps[:, 0]),
+        logger=np.ascontiguousarray(stamps[:, 1]),
+        lines=np.array(scan_lines, dtype=np.int64),
+        odom=np.ascontiguousarray(odom[:, :3]),
+        odom_times=np.ascontiguousarray(odom[:, -2]),
+        params=params,
+        stats=stats,
+    )
 
+
+def _read_lines_slow(
+    text: bytes,
+    path: Path,
+    collector: _Collector,
+    scan_type: bytes | None,
+    max_backstep: float,
+    mixed_geometry: str,
+) -> _Lines:
+    """Every line in Python, one by one: the reference reader, with every check and
+    message of the module docstring (bad lines raise or are skipped via ``collector``)."""
     ranges_list: list[np.ndarray] = []
     geometries: list[tuple] = []
     laser_list: list[np.ndarray] = []
@@ -524,8 +613,84 @@ def load_carmen(
             "no laser scans (FLASER or ROBOTLASER1 lines) in the log"
             + (f"; {skipped} bad lines were skipped" if skipped else ""),
         )
+    counts = np.array([g[0] for g in geometries])
+    ranges = np.full((len(ranges_list), int(counts.max())), np.nan, dtype=np.float64)
+    for index, scan in enumerate(ranges_list):
+        ranges[index, : scan.shape[0]] = scan
+    return _Lines(
+        scan_type=scan_type,
+        ranges=ranges,
+        geometries=geometries,
+        laser=np.array(laser_list, dtype=np.float64).reshape(-1, 3),
+        robot=np.array(robot_list, dtype=np.float64).reshape(-1, 3),
+        ipc=np.array(ipc_list, dtype=np.float64),
+        logger=np.array(logger_list, dtype=np.float64),
+        lines=np.array(line_list, dtype=np.int64),
+        odom=np.array(odom_list, dtype=np.float64).reshape(-1, 3),
+        odom_times=np.array(odom_time_list, dtype=np.float64),
+        params=params,
+    )
+
+
+def load_carmen(
+    path: os.PathLike | str,
+    *,
+    on_error: str = "raise",
+    max_range: float | None = None,
+    laser_offset: tuple[float, float, float] | np.ndarray | None = None,
+    mixed_geometry: str = "raise",
+    max_backstep: float = 1.0,
+    message: str | None = None,
+) -> CarmenLog:
+    """Read a CARMEN log (plain or gzipped) into a :class:`CarmenLog`.
+
+    Args:
+        path: the log file; gzip is detected from its first bytes.
+        on_error: ``"raise"`` (default) raises :class:`DataFormatError` on the first
+            bad line; ``"skip"`` drops bad lines and counts them in ``stats``.
+        max_range: range limit in m. Default: the ROBOTLASER1 line's own field, else
+            PARAM ``robot_front_laser_max``, else :data:`DEFAULT_FLASER_MAX_RANGE`.
+        laser_offset: ``(x, y, theta)`` of the laser in the robot frame. Default: for
+            FLASER logs the ``robot_frontlaser_*offset`` PARAMs if logged; otherwise
+            the median of ``odom_pose^-1 (+) laser_pose`` over the scans. Scans whose
+            poses disagree with it by more than 1 mm / 1 mrad are counted in
+            ``stats["laser_offset_mismatch_scans"]``.
+        mixed_geometry: ``"raise"`` (default) if the beam geometry changes between
+            scans; ``"pad"`` pads short scans with NaN (``valid`` False) to the
+            longest and puts interleaved start angles in ``angle_offsets``.
+        max_backstep: scan timestamps may go back by up to this many seconds
+            (counted in ``stats["backwards_timestamps"]``); a larger step is a bad line.
+        message: ``"FLASER"`` or ``"ROBOTLASER1"``; default: the first scan type in
+            the file. Lines of the other type are counted in
+            ``stats["other_scan_messages"]``.
+
+    Returns:
+        The log's scans, poses, masks and counters.
+
+    Raises:
+        DataFormatError: malformed input, as described in the module docstring.
+        FileNotFoundError: ``path`` does not exist.
+    """
+    if on_error not in ("raise", "skip"):
+        raise ValueError(f"on_error must be 'raise' or 'skip', got {on_error!r}")
+    if mixed_geometry not in ("raise", "pad"):
+        raise ValueError(f"mixed_geometry must be 'raise' or 'pad', got {mixed_geometry!r}")
+    if message not in (None, "FLASER", "ROBOTLASER1"):
+        raise ValueError(f"message must be 'FLASER' or 'ROBOTLASER1', got {message!r}")
+    path = Path(path)
+    text = _read_bytes(path)
+    collector = _Collector(path, on_error)
+    scan_type = None if message is None else message.encode()
+
+    lines = _read_lines_fast(text, scan_type, max_backstep)
+    if lines is None:
+        lines = _read_lines_slow(text, path, collector, scan_type, max_backstep, mixed_geometry)
+    else:
+        for key, amount in lines.stats.items():
+            collector.count(key, amount)
+    scan_type, params, geometries = lines.scan_type, lines.params, lines.geometries
     used = scan_type.decode()
-    num_scans = len(ranges_list)
+    num_scans = lines.ranges.shape[0]
     counts = np.array([g[0] for g in geometries])
     num_beams = int(counts.max())
 
@@ -574,9 +739,7 @@ def load_carmen(
         scan_max_range = np.full(num_scans, limit)
 
     # Ranges and masks.
-    ranges = np.full((num_scans, num_beams), np.nan, dtype=np.float64)
-    for index, scan in enumerate(ranges_list):
-        ranges[index, : scan.shape[0]] = scan
+    ranges = lines.ranges
     present = np.arange(num_beams)[None, :] < counts[:, None]
     with np.errstate(invalid="ignore"):
         finite = np.isfinite(ranges)
@@ -590,8 +753,8 @@ def load_carmen(
     collector.count("padded_beams", int((~present).sum()))
 
     # Poses and the laser mounting.
-    odom_poses = np.array(robot_list, dtype=np.float64).reshape(num_scans, 3)
-    laser_poses = np.array(laser_list, dtype=np.float64).reshape(num_scans, 3)
+    odom_poses = lines.robot
+    laser_poses = lines.laser
     with np.errstate(all="ignore"):
         relative = se2_between(odom_poses, laser_poses)
     if laser_offset is not None:
@@ -620,9 +783,9 @@ def load_carmen(
     log = CarmenLog(
         path=path,
         message=used,
-        scan_times=np.array(ipc_list, dtype=np.float64),
-        logger_times=np.array(logger_list, dtype=np.float64),
-        scan_lines=np.array(line_list, dtype=np.int64),
+        scan_times=lines.ipc,
+        logger_times=lines.logger,
+        scan_lines=lines.lines,
         ranges=ranges_f32,
         valid=valid,
         max_range_mask=max_range_mask,
@@ -633,8 +796,8 @@ def load_carmen(
         laser_offset=offset,
         odom_poses=odom_poses,
         laser_poses=laser_poses,
-        odom_times=np.array(odom_time_list, dtype=np.float64),
-        odom_readings=np.array(odom_list, dtype=np.float64).reshape(-1, 3),
+        odom_times=lines.odom_times,
+        odom_readings=lines.odom,
         params={name: value for name, (value, _) in params.items()},
         stats=dict(sorted(collector.stats.items())),
         problems=tuple(collector.problems),
