@@ -99,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="laser data: ... or this much odometric rotation (angularUpdate; default 0.5, FR079 0)")
     run.add_argument("--temporal-update", type=float, default=None, metavar="S",
                      help="laser data: ... or after this many seconds (temporalUpdate; default -1: off)")
+    run.add_argument("--max-range", type=float, default=None, metavar="M",
+                     help="CARMEN logs: range limit in m; readings at or beyond it are 'no return' (default: the "
+                          "logged limit, lowered to a detected no-return sentinel pile, see summary.json no_return)")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",

@@ -225,7 +225,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
-             checkpoint=None, keyframes=None):
+             checkpoint=None, keyframes=None, max_range=None):
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.trajectory_io import write_tum
 
@@ -238,7 +238,8 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     else:
         from jaxslam.datasets.carmen import load_dataset_log
 
-        log = load_dataset_log(info.name if info is not None else str(path))
+        log = load_dataset_log(info.name if info is not None else str(path),
+                               **({"max_range": max_range} if max_range is not None else {}))
     load_s = time.perf_counter() - loading
     result = grid_experiment.run_grid_slam(
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
@@ -255,6 +256,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name,
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}), "load_s": load_s,
+        "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
     }
     writing = time.perf_counter()
     write_tum(out / "trajectory.tum", result.scan_times, result.trajectory,
@@ -301,6 +303,7 @@ def run(
     checkpoint_every: int | None = None,
     resume: bool = False,
     keyframes: dict[str, float] | None = None,
+    max_range: float | None = None,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -310,6 +313,8 @@ def run(
     ``out/run.json`` so that ``jaxslam run --resume OUT`` needs nothing else.
     ``keyframes`` (laser data only) sets any of ``linear``, ``angular``, ``temporal``
     of the keyframe rule (see :func:`jaxslam.grid.experiment.keyframe_rule`).
+    ``max_range`` (CARMEN logs) sets the range limit, in place of the logged one and
+    of the "no return" sentinel detection (:func:`jaxslam.datasets.carmen.detect_no_return`).
     """
     import jax
     import jax.numpy as jnp
@@ -343,6 +348,12 @@ def run(
                 "max_steps": max_steps, "overrides": overrides, "float64": float64, "chunk": chunk}
     if keyframes:
         run_args["keyframes"] = keyframes
+    if max_range is not None:
+        if kind != "laser" or (info is not None and info.simulated):
+            raise RunError("--max-range applies to CARMEN logs only")
+        if not max_range > 0:
+            raise RunError(f"--max-range must be positive, got {max_range}")
+        run_args["max_range"] = float(max_range)
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint
@@ -361,8 +372,11 @@ def run(
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
     if kind == "laser":
         args = (info, path) + args[1:]
+    extra = {"keyframes": keyframes} if keyframes else {}
+    if max_range is not None:
+        extra["max_range"] = float(max_range)
     with CompileCounter() as compilations:
-        summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}))
+        summary = runner(*args, checkpoint=checkpoint, **extra)
     summary["resumed"] = bool(resume)
     summary["overrides"] = overrides
     summary["jaxslam_version"] = __import__("jaxslam").__version__
@@ -404,6 +418,7 @@ def run_from_args(args) -> dict[str, Any] | None:
         max_steps=args.max_steps, overrides=_overrides_dict(args.overrides), progress=not args.no_progress,
         chunk=args.chunk, float64=args.float64, plots=not args.no_plots, checkpoint_every=args.checkpoint_every,
         keyframes={"linear": args.linear_update, "angular": args.angular_update, "temporal": args.temporal_update},
+        max_range=args.max_range,
     )
 
 

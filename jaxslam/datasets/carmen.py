@@ -32,6 +32,10 @@ Range policy (``valid`` and ``max_range_mask`` never overlap):
 * ``r >= max_range``: "no return". Not a hit, so ``valid`` is False, but the beam
   saw free space out to ``max_range``: ``max_range_mask`` marks these for callers
   that clear free space along max-range beams (GMapping's ``maxUrange`` logic).
+* A "no return" sentinel, a pile of readings just above the laser's real range
+  with no PARAM saying so (MIT Killian: about 40,000 readings at 51.05-51.22 m; Orebro:
+  32.76 m), is found by :func:`detect_no_return` when ``max_range`` is not given;
+  ``max_range`` then becomes the pile's start, so its readings are "no return" too.
 * otherwise: a hit, ``valid`` is True.
 
 Error policy. Malformed lines (a beam count that does not match the number of
@@ -66,6 +70,7 @@ __all__ = [
     "CarmenLog",
     "DATASET_LOGS",
     "DEFAULT_FLASER_MAX_RANGE",
+    "detect_no_return",
     "guess_angular_resolution",
     "load_carmen",
     "load_dataset_log",
@@ -124,6 +129,10 @@ class CarmenLog:
             ``other_scan_messages``, ``laser_offset_mismatch_scans``.
         problems: messages of the lines skipped under ``on_error="skip"`` (the first
             100).
+        no_return: what the "no return" sentinel detection decided
+            (:func:`detect_no_return`'s result and ``source``); when a pile was found,
+            ``max_range`` is its start and ``stats["no_return_sentinel_readings"]``
+            counts the readings it turned from hits into "no return".
     """
 
     path: Path
@@ -146,6 +155,7 @@ class CarmenLog:
     params: dict[str, str]
     stats: dict[str, int]
     problems: tuple[str, ...] = ()
+    no_return: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     @property
     def num_scans(self) -> int:
@@ -641,6 +651,7 @@ def load_carmen(
     mixed_geometry: str = "raise",
     max_backstep: float = 1.0,
     message: str | None = None,
+    detect_sentinel: bool = True,
 ) -> CarmenLog:
     """Read a CARMEN log (plain or gzipped) into a :class:`CarmenLog`.
 
@@ -649,7 +660,9 @@ def load_carmen(
         on_error: ``"raise"`` (default) raises :class:`DataFormatError` on the first
             bad line; ``"skip"`` drops bad lines and counts them in ``stats``.
         max_range: range limit in m. Default: the ROBOTLASER1 line's own field, else
-            PARAM ``robot_front_laser_max``, else :data:`DEFAULT_FLASER_MAX_RANGE`.
+            PARAM ``robot_front_laser_max``, else :data:`DEFAULT_FLASER_MAX_RANGE`;
+            lowered to the start of a "no return" sentinel pile if one is found
+            below it (:func:`detect_no_return`). An explicit value is used as is.
         laser_offset: ``(x, y, theta)`` of the laser in the robot frame. Default: for
             FLASER logs the ``robot_frontlaser_*offset`` PARAMs if logged; otherwise
             the median of ``odom_pose^-1 (+) laser_pose`` over the scans. Scans whose
@@ -663,6 +676,8 @@ def load_carmen(
         message: ``"FLASER"`` or ``"ROBOTLASER1"``; default: the first scan type in
             the file. Lines of the other type are counted in
             ``stats["other_scan_messages"]``.
+        detect_sentinel: look for a "no return" sentinel pile when ``max_range`` is
+            not given (see :func:`detect_no_return`; the decision is in ``no_return``).
 
     Returns:
         The log's scans, poses, masks and counters.
@@ -738,8 +753,22 @@ def load_carmen(
         limit = logged if logged is not None and logged > 0 else DEFAULT_FLASER_MAX_RANGE
         scan_max_range = np.full(num_scans, limit)
 
-    # Ranges and masks.
+    # A "no return" sentinel below the limit (see detect_no_return).
     ranges = lines.ranges
+    if max_range is not None:
+        no_return: dict[str, Any] = {"detected": False, "source": "max_range argument"}
+    elif not detect_sentinel:
+        no_return = {"detected": False, "source": "detection off"}
+    else:
+        no_return = {**detect_no_return(ranges, scan_max_range), "source": "detected"}
+        if no_return["detected"]:
+            with np.errstate(invalid="ignore"):
+                newly = np.isfinite(ranges) & (ranges >= no_return["range_m"]) & (ranges < scan_max_range[:, None])
+            no_return["readings"] = int(newly.sum())
+            collector.count("no_return_sentinel_readings", int(newly.sum()))
+            scan_max_range = np.minimum(scan_max_range, no_return["range_m"])
+
+    # Ranges and masks.
     present = np.arange(num_beams)[None, :] < counts[:, None]
     with np.errstate(invalid="ignore"):
         finite = np.isfinite(ranges)
@@ -801,12 +830,117 @@ def load_carmen(
         params={name: value for name, (value, _) in params.items()},
         stats=dict(sorted(collector.stats.items())),
         problems=tuple(collector.problems),
+        no_return=no_return,
     )
     for field in dataclasses.fields(log):
         value = getattr(log, field.name)
         if isinstance(value, np.ndarray):
             value.setflags(write=False)
     return log
+
+
+NO_RETURN_BAND = 0.25
+"""Width of the band at the top of the observed ranges searched for a sentinel pile (m)."""
+
+
+def detect_no_return(
+    ranges: np.ndarray,
+    limit: np.ndarray | float,
+    *,
+    band: float = NO_RETURN_BAND,
+    gap: float = 2.0,
+    min_share: float = 1e-3,
+    min_count: int = 50,
+    min_contrast: float = 20.0,
+    min_beam_share: float = 0.1,
+) -> dict[str, Any]:
+    """Find a "no return" sentinel: readings piled up at the top of the observed range.
+
+    Some lasers (and logs converted from other formats) report "no echo" not as their
+    range limit or a code above it but as a value just above their real range, with
+    no PARAM saying so: MIT Killian's SICK has a 50 m range and logs about 40,000
+    readings at 51.05-51.22 m; Orebro's logs about 970 at 32.76-32.77 m. Taken as
+    hits they draw walls that do not exist. Such a pile has a shape that real echoes
+    do not have, and all of these must hold:
+
+    1. Narrow and on top: the ``band``-wide window (1 cm histogram bins) holding the
+       most readings among windows that start in the top 10 % of the observed range
+       (readings ``0 < r < limit``), with at most 1 % of its count above it.
+    2. A cliff, not a slope: its density (readings per m) is at least
+       ``min_contrast`` times the density in the ``gap`` metres just below it. Walls
+       seen from a moving robot spread over many ranges (a flat wall at distance
+       ``d`` gives ``d / cos(angle)``, densest at ``d``, thinning out upwards), so
+       real data falls off gently towards its top.
+    3. Frequent: at least ``min_count`` readings and ``min_share`` of all readings.
+    4. On many beams: at least ``min_beam_share`` of the beam indices have a reading
+       in it. One wall at a fixed distance (a robot driving along a corridor, its
+       side beam at a constant range) fills one or a few beams, a sentinel every
+       beam that looks into open space somewhere along the path.
+
+    On the shipped logs the sentinels score contrast 110-5000, share 0.7-8 % and beam
+    share 0.59-1.0, and every other log's top window contrast < 35 with fewer than
+    200 readings; the thresholds sit in between. The pile starts at the lowest 1 cm
+    bin reached from its fullest bin going down over bins with at least 0.1 % of the
+    fullest bin's count (and two readings), across holes of at most 5 cm, so the
+    pile's stray codes are not left as hits and real echoes further below are.
+
+    Args:
+        ranges: (S, B) ranges (NaN for missing beams).
+        limit: the range limit in use, scalar or (S,) per scan; readings at or above
+            it are already "no return" and not looked at.
+        band, gap, min_share, min_count, min_contrast, min_beam_share: the criteria
+            above.
+
+    Returns:
+        ``{"detected": bool, "range_m": start of the pile or None, "readings": n,
+        "share", "contrast", "beam_share", "window_m": [lo, hi]}`` (the statistics of
+        the best window, also when it is not a sentinel).
+    """
+    ranges = np.asarray(ranges, dtype=np.float64)
+    limit = np.broadcast_to(np.asarray(limit, dtype=np.float64).reshape(-1, 1), (ranges.shape[0], 1))
+    with np.errstate(invalid="ignore"):
+        usable = np.isfinite(ranges) & (ranges > 0.0) & (ranges < limit)
+    values = ranges[usable]
+    result: dict[str, Any] = {"detected": False, "range_m": None, "readings": 0, "share": 0.0,
+                              "contrast": 0.0, "beam_share": 0.0, "window_m": None}
+    if values.size < min_count:
+        return result
+    step = 0.01
+    width = max(int(round(band / step)), 1)
+    top = float(values.max())
+    counts = np.bincount(np.floor(values / step).astype(np.int64))
+    windows = np.convolve(counts, np.ones(width, dtype=np.int64), mode="valid")
+    first = min(int(0.9 * top / step), windows.size - 1)
+    start = first + int(np.argmax(windows[first:]))
+    pile_count = int(windows[start])
+    low, high = start * step, (start + width) * step
+    above = int(counts[start + width :].sum())
+    below = int(counts[max(start - int(round(gap / step)), 0) : start].sum())
+    contrast = (pile_count / band) / max(below / gap, 1.0 / gap)
+    bins = np.floor(ranges / step)
+    with np.errstate(invalid="ignore"):
+        in_window = usable & (bins >= start) & (bins < start + width)
+    beam_share = float(np.mean(in_window.any(axis=0)))
+    result.update(readings=pile_count, share=pile_count / values.size, contrast=float(contrast),
+                  beam_share=beam_share, window_m=[round(low, 2), round(high, 2)])
+    if (
+        pile_count >= max(min_count, min_share * values.size)
+        and above <= 0.01 * pile_count
+        and contrast >= min_contrast
+        and beam_share >= min_beam_share
+    ):
+        window = counts[start : start + width]
+        floor = max(2, 0.001 * window.max())
+        edge, hole = int(np.argmax(window)), 0
+        for index in range(edge - 1, -1, -1):  # down from the fullest bin over holes <= 5 cm
+            if window[index] >= floor:
+                edge, hole = index, 0
+            else:
+                hole += 1
+                if hole > 5:
+                    break
+        result.update(detected=True, range_m=round((start + edge) * step, 2))
+    return result
 
 
 def _describe(geometry: tuple) -> str:
@@ -870,8 +1004,9 @@ def select_keyframes(
     return np.array(keyframes, dtype=np.int64)
 
 
-# name -> (folder, file, load_carmen keyword defaults). The max ranges below the
-# default mark the saturation clusters seen in the data (about 51.1 m and 32.76 m).
+# name -> (folder, file, load_carmen keyword defaults). No per-log range limits: the
+# "no return" piles of Killian, Acapulco, FHW, Infinite Corridor and Orebro (about
+# 51.1 m and 32.76 m) are found by detect_no_return, for a path as for a name.
 DATASET_LOGS: dict[str, tuple[str, str, dict[str, Any]]] = {
     "intel": ("carmen_raw", "intel.clf.gz", {}),
     "fr079": ("carmen_raw", "fr079.clf.gz", {}),
@@ -881,24 +1016,20 @@ DATASET_LOGS: dict[str, tuple[str, str, dict[str, Any]]] = {
         "fr-clinic_robotlaser.clf.gz",
         {"mixed_geometry": "pad", "max_range": DEFAULT_FLASER_MAX_RANGE},
     ),
-    "mit-killian": ("carmen_raw", "mit-killian_reconstructed.clf.gz", {"max_range": 51.0}),
+    "mit-killian": ("carmen_raw", "mit-killian_reconstructed.clf.gz", {}),
     "mrpt-sena": ("mrpt", "2006-01ENE-21-SENA_Telecom_Faculty_one_loop_only.clf.gz", {}),
     "mrpt-localization-demo": ("mrpt", "localization_demo.clf.gz", {}),
     "mrpt-ual": ("mrpt", "ual_dataset_2014_05_23_2dlaser_odo.clf.gz", {}),
 }
-_CORRECTED_MAX_RANGE = {"acapulco": 51.0, "fhw": 51.0, "infinite-corridor": 51.0, "orebro": 32.7}
 for _place in (
     "acapulco belgioioso csail edmonton fhw freiburg-079 freiburg-101 freiburg-campus "
     "infinite-corridor intel orebro seattle"
 ).split():
     # Both pose triples of a corrected FLASER line hold the corrected laser pose.
-    _options: dict[str, Any] = {"laser_offset": (0.0, 0.0, 0.0)}
-    if _place in _CORRECTED_MAX_RANGE:
-        _options["max_range"] = _CORRECTED_MAX_RANGE[_place]
     DATASET_LOGS[f"{_place}-corrected"] = (
         "carmen_gmapping_corrected",
         f"{_place}-corrected.log.gz",
-        _options,
+        {"laser_offset": (0.0, 0.0, 0.0)},
     )
 DATASET_LOGS["fr079-corrected"] = DATASET_LOGS["freiburg-079-corrected"]
 DATASET_LOGS["mit-csail-corrected"] = DATASET_LOGS["csail-corrected"]
