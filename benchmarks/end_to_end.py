@@ -3,7 +3,7 @@ compilation cache, next to GMapping C++ in the same run.
 
 Usage:
     python benchmarks/end_to_end.py [--cases intel-srupf-30 intel-gmapping-30 ...]
-        [--modes cold warm] [--no-gmapping] [--workdir DIR] [--timeout S]
+        [--modes cold warm] [--no-gmapping] [--workdir DIR] [--timeout S] [--json NAME]
 
 Cases (``--cases all`` for every one; default ``intel-srupf-30``):
 
@@ -122,6 +122,7 @@ def main() -> None:
     parser.add_argument("--no-gmapping", action="store_true", help="do not run GMapping C++")
     parser.add_argument("--workdir", type=Path, default=None, help="outputs and caches (default: a temp folder)")
     parser.add_argument("--timeout", type=float, default=3600.0, help="seconds per process")
+    parser.add_argument("--json", default="end_to_end", help="result name: benchmarks/results/NAME.json")
     args = parser.parse_args()
     cases = list(CASES) if args.cases == ["all"] else args.cases
     unknown = [c for c in cases if c not in CASES]
@@ -153,7 +154,7 @@ def main() -> None:
                 print(f"{case} GMapping C++: process {row['gmapping_process_s']:.1f} s, "
                       f"SLAM {row['gmapping_slam_s']:.1f} s", flush=True)
         rows.append(row)
-        write_json("end_to_end", {"rows": rows, "workdir": str(workdir)})
+        write_json(args.json, {"rows": rows, "workdir": str(workdir)})
 
     columns = ["case"]
     for mode in args.modes:
@@ -162,7 +163,7 @@ def main() -> None:
     columns += ["gmapping_process_s", "gmapping_slam_s"] + [f"{m}_speedup_process" for m in args.modes]
     columns += ["speedup_loop"]
     print_table(rows, columns)
-    path = write_json("end_to_end", {"rows": rows, "workdir": str(workdir)})
+    path = write_json(args.json, {"rows": rows, "workdir": str(workdir)})
     print(f"wrote {path}")
 
 
