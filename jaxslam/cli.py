@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -152,13 +153,16 @@ def cmd_datasets(_args) -> int:
 
 def cmd_run(args) -> int:
     from jaxslam import runs
+    from jaxslam.cache import ENV_VAR as CACHE_ENV_VAR
     from jaxslam.cache import enable_compilation_cache
 
     if not args.list_params:
         try:
             enable_compilation_cache("off" if args.no_cache else args.cache_dir)
         except OSError as err:
-            raise CliError(str(err)) from None
+            if args.cache_dir is not None or os.environ.get(CACHE_ENV_VAR) is not None:
+                raise CliError(str(err)) from None
+            print(f"jaxslam run: warning: running without the compilation cache: {err}", file=sys.stderr)
 
     summary = runs.run_from_args(args)
     if summary is not None:

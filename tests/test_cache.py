@@ -116,3 +116,24 @@ def test_cli_runs_identical_cold_warm_and_off(tmp_path):
         if name == "off":
             assert summary["cache_dir"] is None and summary["compilations"]["cache_hits"] == 0
     assert outputs["cold"] == outputs["warm"] == outputs["off"]
+
+
+def test_unusable_cache_folder(tmp_path, monkeypatch, capsys):
+    """An explicit folder that cannot be made is an error naming it; an unusable
+    default only costs the cache (a warning), never the run."""
+    from jaxslam import cache, cli
+
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    with pytest.raises(OSError, match="cannot create the compilation cache folder"):
+        cache.enable_compilation_cache(blocker / "sub")
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
+    args = cli.build_parser().parse_args(["run", "--out", str(tmp_path / "o"), "--list-params"])
+    args.list_params = False
+    monkeypatch.setattr("jaxslam.runs.run_from_args", lambda _args: None)
+    assert cli.cmd_run(args) == 0
+    assert "running without the compilation cache" in capsys.readouterr().err
+    args.cache_dir = blocker / "sub"
+    with pytest.raises(cli.CliError, match="cannot create"):
+        cli.cmd_run(args)
