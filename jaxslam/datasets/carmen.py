@@ -423,7 +423,7 @@ class _Lines:
     stats: dict[str, int] = dataclasses.field(default_factory=dict)
 
 
-def _numeric_rows(rows: list[bytes], columns: int) -> np.ndarray | None:
+def _number_block(rows: list[bytes], columns: int) -> np.ndarray | None:
     """``rows`` of whitespace-separated numbers as a ``(len(rows), columns)`` float64
     array (NumPy's C text parser), or None if any row is not exactly ``columns``
     numbers."""
@@ -500,8 +500,8 @@ def _read_lines_fast(text: bytes, scan_type: bytes | None, max_backstep: float) 
         return None
     if num_beams < 1:
         return None
-    scans = _numeric_rows(scan_rows, num_beams + 9)
-    odom = _numeric_rows(odom_rows, 8)
+    scans = _number_block(scan_rows, num_beams + 9)
+    odom = _number_block(odom_rows, 8)
     if scans is None or odom is None:
         return None
     ranges, poses, stamps = scans[:, 1 : 1 + num_beams], scans[:, 1 + num_beams : 7 + num_beams], scans[:, -2:]
