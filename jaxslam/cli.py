@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -105,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="laser data: ... or after this many seconds (temporalUpdate; default -1: off)")
     run.add_argument("--params", type=Path, default=None, metavar="FILE",
                      help="noise levels from a `jaxslam calibrate` output (DIR/calibration.json); --set wins")
+    run.add_argument("--max-range", type=float, default=None, metavar="M",
+                     help="CARMEN logs: range limit in m; readings at or beyond it are 'no return' (default: the "
+                          "logged limit, lowered to a detected no-return sentinel pile, see summary.json no_return)")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",
@@ -129,6 +133,11 @@ def build_parser() -> argparse.ArgumentParser:
     bag.add_argument("--base-frame", default=None, help="robot base frame (default: the odometry's child frame)")
     bag.add_argument("--laser-mount", type=float, nargs=3, default=None, metavar=("X", "Y", "THETA"),
                      help="laser pose in the base frame (m, m, rad); default: from /tf_static")
+    run.add_argument("--cache-dir", type=Path, default=None, metavar="DIR",
+                     help="JAX persistent compilation cache folder (default: $JAXSLAM_CACHE_DIR, else "
+                          "$XDG_CACHE_HOME/jaxslam/jax or ~/.cache/jaxslam/jax)")
+    run.add_argument("--no-cache", action="store_true",
+                     help="do not use the compilation cache (same as JAXSLAM_CACHE_DIR=off)")
 
     ev = sub.add_parser("evaluate", help="score a TUM trajectory (relations metric or GPS error)",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -183,6 +192,16 @@ def cmd_datasets(args) -> int:
 
 def cmd_run(args) -> int:
     from jaxslam import runs
+    from jaxslam.cache import ENV_VAR as CACHE_ENV_VAR
+    from jaxslam.cache import enable_compilation_cache
+
+    if not args.list_params:
+        try:
+            enable_compilation_cache("off" if args.no_cache else args.cache_dir)
+        except OSError as err:
+            if args.cache_dir is not None or os.environ.get(CACHE_ENV_VAR) is not None:
+                raise CliError(str(err)) from None
+            print(f"jaxslam run: warning: running without the compilation cache: {err}", file=sys.stderr)
 
     summary = runs.run_from_args(args)
     if summary is not None:

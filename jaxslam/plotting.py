@@ -72,12 +72,16 @@ def plot_landmark_slam(
     return fig
 
 
+_MAX_FIGURE_CELLS = 2048
+
+
 def plot_grid_map(log_odds, resolution: float, origin, trajectory=None, title: str = ""):
     """An occupancy map (log-odds, rows = y) with the trajectory over it.
 
-    The view is cropped to the observed cells (non-zero log-odds) plus a 1 m margin.
+    The view is cropped to the observed cells (non-zero log-odds) plus a 1 m margin;
+    maps larger than 2048 cells are drawn from k x k block means.
     """
-    log_odds = np.asarray(log_odds, float)
+    log_odds = np.asarray(log_odds, np.float32)
     observed = np.abs(log_odds) > 1e-6
     if observed.any():
         pad = int(np.ceil(1.0 / resolution))
@@ -86,11 +90,21 @@ def plot_grid_map(log_odds, resolution: float, origin, trajectory=None, title: s
         c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, log_odds.shape[1])
         log_odds = log_odds[r0:r1, c0:c1]
         origin = (origin[0] + c0 * resolution, origin[1] + r0 * resolution)
-    prob = 1.0 / (1.0 + np.exp(-log_odds))
-    h, w = prob.shape
+    h, w = log_odds.shape
     extent = [origin[0], origin[0] + w * resolution, origin[1], origin[1] + h * resolution]
+    # A figure is about 1000 pixels wide: average blocks of k x k cells first so that
+    # at most ~2000 x 2000 values reach matplotlib, whose resampling of a full-size
+    # big map took seconds (the map files keep every cell).
+    k = max(1, -(-max(h, w) // _MAX_FIGURE_CELLS))
+    with np.errstate(over="ignore"):
+        free = 1.0 / (1.0 + np.exp(log_odds))  # 1 - p(occupied)
+    if k > 1:
+        hk, wk = -(-h // k) * k, -(-w // k) * k
+        padded = np.pad(free, ((0, hk - h), (0, wk - w)), mode="edge")
+        free = padded.reshape(hk // k, k, wk // k, k).mean(axis=(1, 3))
+        extent = [origin[0], origin[0] + wk * resolution, origin[1], origin[1] + hk * resolution]
     fig, ax = plt.subplots(figsize=(8, 8 * h / max(w, 1) + 0.5))
-    ax.imshow(1.0 - prob, cmap="gray", origin="lower", extent=extent, vmin=0, vmax=1)
+    ax.imshow(free, cmap="gray", origin="lower", extent=extent, vmin=0, vmax=1)
     if trajectory is not None:
         traj = np.asarray(trajectory)
         ax.plot(traj[:, 0], traj[:, 1], "-", color="tab:red", lw=0.8, label="trajectory")

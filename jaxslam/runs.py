@@ -152,8 +152,10 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.trajectory_io import write_tum
 
+    loading = time.perf_counter()
     sequence = load_landmark_sequence(info, max_steps, seed)
     live = {} if viz is None else {"callback": viz.landmark_callback(np.asarray(sequence.times))}
+    load_s = time.perf_counter() - loading
     result = run_landmark_slam(
         sequence, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
         progress=progress, chunk=min(chunk or 512, 50) if viz is not None else chunk or 512, dtype=dtype,
@@ -166,7 +168,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
         "steps": result.steps, "wall_s": result.wall_s, "compile_s": result.compile_s,
         "steps_per_s": result.steps / result.wall_s if result.wall_s > 0 else None,
         "resamplings": result.resamplings, "landmarks": result.landmarks,
-        "dtype": np.dtype(dtype).name,
+        "dtype": np.dtype(dtype).name, "load_s": load_s,
     }
     finite = bool(np.all(np.isfinite(result.trajectory)))
     summary["finite"] = finite
@@ -202,6 +204,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
         reference_xy = sequence.true_poses[:, :2]
         true_landmarks = sequence.landmarks
         ref_label = "ground truth"
+    writing = time.perf_counter()
     write_tum(out / "trajectory.tum", result.times, result.trajectory,
               comment=f"jaxslam {algorithm} on {info.name}, {particles} particles, seed {seed}")
     with open(out / "landmarks.csv", "w", newline="") as fh:
@@ -219,6 +222,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
         weight_variance=result.info.get("weight_variance", np.zeros(0)),
         title=f"{algorithm}, {info.name}, {particles} particles",
     )
+    summary["output_s"] = time.perf_counter() - writing
     return summary
 
 
@@ -226,11 +230,12 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
-             checkpoint=None, keyframes=None, bag=None, viz=None):
+             checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None):
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.trajectory_io import write_tum
 
     name = info.name if info is not None else str(path)
+    loading = time.perf_counter()
     if info is not None and info.name == "sim-laser":
         from jaxslam.datasets import laser_sim
 
@@ -242,7 +247,9 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     else:
         from jaxslam.datasets.carmen import load_dataset_log
 
-        log = load_dataset_log(info.name if info is not None else str(path))
+        log = load_dataset_log(info.name if info is not None else str(path),
+                               **({"max_range": max_range} if max_range is not None else {}))
+    load_s = time.perf_counter() - loading
     live = None
     if viz is not None:
         live = _grid_live_log(viz, log, max_steps, keyframes, chunk)
@@ -264,12 +271,15 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name,
         "finite": bool(np.all(np.isfinite(result.trajectory))),
-        "log_stats": getattr(log, "stats", {}),
+        "log_stats": getattr(log, "stats", {}), "load_s": load_s,
+        "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
     }
     if path is not None and _is_bag(path):
         summary["bag"] = dict(log.params)  # the topics and frames used
+    writing = time.perf_counter()
     write_tum(out / "trajectory.tum", result.scan_times, result.trajectory,
               comment=f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}")
+    output_s = time.perf_counter() - writing
     relations = info.relations_path() if info is not None else None
     if relations is not None:
         from jaxslam.metrics.relations import load_relations, relations_metric
@@ -281,6 +291,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         summary.update({"pos_err_mean_m": float(errors.mean()), "pos_err_max_m": float(errors.max())})
     from jaxslam.grid.export import save_map
 
+    writing = time.perf_counter()
     save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
     np.savez_compressed(
         out / "arrays.npz", kind="laser", times=result.scan_times, trajectory=result.trajectory,
@@ -288,6 +299,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         ess=result.info["ess"], resampled=result.info["resampled"], particles=particles,
         title=f"{algorithm}, {name}, {particles} particles",
     )
+    summary["output_s"] = output_s + time.perf_counter() - writing
     return summary
 
 
@@ -364,6 +376,7 @@ def run(
     bag: dict[str, Any] | None = None,
     rerun: str | Path | None = None,
     rerun_spawn: bool = False,
+    max_range: float | None = None,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -378,6 +391,8 @@ def run(
     stamps are the scans' header stamps (the bag's time base).
     ``rerun`` (a ``.rrd`` path) and/or ``rerun_spawn`` log the run to Rerun as it goes
     (:mod:`jaxslam.viz.rerun_log`; needs ``pip install "jaxslam[viz]"``).
+    ``max_range`` (CARMEN logs) sets the range limit, in place of the logged one and
+    of the "no return" sentinel detection (:func:`jaxslam.datasets.carmen.detect_no_return`).
     """
     import jax
     import jax.numpy as jnp
@@ -416,6 +431,12 @@ def run(
         run_args["keyframes"] = keyframes
     if bag:
         run_args["bag"] = bag
+    if max_range is not None:
+        if kind != "laser" or (info is not None and info.simulated):
+            raise RunError("--max-range applies to CARMEN logs only")
+        if not max_range > 0:
+            raise RunError(f"--max-range must be positive, got {max_range}")
+        run_args["max_range"] = float(max_range)
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint
@@ -427,15 +448,24 @@ def run(
             raise RunError(f"--resume: no checkpoint in {str(out)!r} (run with --checkpoint-every N first)")
     if not resume:
         write_json(out / "run.json", run_args)
+    from jaxslam.cache import CompileCounter
+
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
     if kind == "laser":
         args = (info, path) + args[1:]
+    extra = {"keyframes": keyframes} if keyframes else {}
+    if max_range is not None:
+        extra["max_range"] = float(max_range)
+    if bag:
+        extra["bag"] = bag
     viz = _open_viz(rerun, rerun_spawn, dataset_name)
+    if viz is not None:
+        extra["viz"] = viz
     try:
-        summary = runner(*args, checkpoint=checkpoint, **({"keyframes": keyframes} if keyframes else {}),
-                         **({"bag": bag} if bag else {}), **({"viz": viz} if viz is not None else {}))
+        with CompileCounter() as compilations:
+            summary = runner(*args, checkpoint=checkpoint, **extra)
     finally:
         if viz is not None:
             viz.close()
@@ -443,12 +473,18 @@ def run(
         summary["rerun"] = str(rerun)
     summary["resumed"] = bool(resume)
     summary["overrides"] = overrides
-    summary["total_s"] = time.time() - started
     summary["jaxslam_version"] = __import__("jaxslam").__version__
     summary["jax_version"] = jax.__version__
-    write_json(out / "summary.json", summary)
+    # XLA programs compiled or loaded from the persistent cache (jaxslam.cache)
+    summary["compilations"] = compilations.as_dict()
+    summary["cache_dir"] = jax.config.jax_compilation_cache_dir
+    # load_s, output_s: reading the data; writing the files and figures (seconds)
+    writing = time.perf_counter()
     if plots:
         replot(out)
+    summary["output_s"] = summary.get("output_s", 0.0) + time.perf_counter() - writing
+    summary["total_s"] = time.time() - started
+    write_json(out / "summary.json", summary)
     return summary
 
 
@@ -484,6 +520,7 @@ def run_from_args(args) -> dict[str, Any] | None:
         bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,
              "laser_offset": args.laser_mount},
         rerun=args.rerun, rerun_spawn=args.rerun_spawn,
+        max_range=args.max_range,
     )
 
 

@@ -62,3 +62,50 @@ def test_png_with_trajectory(tmp_path):
     assert rgb.shape == (10, 10, 3)
     assert tuple(rgb[9, 0]) == (220, 30, 30)  # (0.02, 0.02) is the bottom-left cell
     assert tuple(rgb[1, 8]) == (220, 30, 30)
+
+
+def _image_by_formula(log_odds, occupied=0.65, free=0.196):
+    p = 1.0 / (1.0 + np.exp(-np.asarray(log_odds, np.float64)))
+    img = np.full(p.shape, UNKNOWN, np.uint8)
+    img[p > occupied] = OCCUPIED
+    img[p < free] = FREE
+    return img[::-1]
+
+
+def test_occupancy_image_equals_the_probability_formula_at_the_thresholds():
+    import math
+
+    rng = np.random.default_rng(1)
+    occ, free = math.log(0.65 / 0.35), math.log(0.196 / 0.804)
+    special = [occ, free, np.nextafter(occ, 0), np.nextafter(occ, 9), np.nextafter(free, -9),
+               np.nextafter(free, 0), np.inf, -np.inf, np.nan, 800.0, -800.0, 0.0]
+    for dtype in (np.float32, np.float64):
+        values = np.concatenate([rng.normal(0, 2, 400), np.array(special),
+                                 occ + rng.normal(0, 1e-7, 50), free + rng.normal(0, 1e-7, 50)])
+        grid = values.astype(dtype).reshape(-1, 8) if values.size % 8 == 0 else values[:512].astype(dtype).reshape(64, 8)
+        with np.errstate(over="ignore", invalid="ignore"):
+            np.testing.assert_array_equal(occupancy_image(grid), _image_by_formula(grid))
+            np.testing.assert_array_equal(occupancy_image(grid, 0.8, 0.3), _image_by_formula(grid, 0.8, 0.3))
+
+
+def test_png_pixels_equal_matplotlib_imsave(tmp_path):
+    from matplotlib.image import imsave
+
+    from jaxslam.grid.export import write_png
+
+    rng = np.random.default_rng(2)
+    # the map's palette (occupied, unknown, free) and any RGB: the same pixels as imsave
+    palette = rng.choice(np.array([OCCUPIED, UNKNOWN, FREE], np.uint8), (37, 53))
+    rgb = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    for name, image, kwargs in (("grey", palette, {"cmap": "gray", "vmin": 0, "vmax": 255}), ("rgb", rgb, {})):
+        write_png(tmp_path / f"{name}.png", image)
+        imsave(tmp_path / f"{name}_mpl.png", image, format="png", **kwargs)
+        ours = _png_pixels((tmp_path / f"{name}.png").read_bytes())
+        theirs = _png_pixels((tmp_path / f"{name}_mpl.png").read_bytes())
+        np.testing.assert_array_equal(ours, theirs)
+        np.testing.assert_array_equal(ours, image)
+    # any grey value is written exactly (imsave's 256-entry grey colormap is off by one
+    # for about 10 % of the values, never for the palette above)
+    grey = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    write_png(tmp_path / "all.png", grey)
+    np.testing.assert_array_equal(_png_pixels((tmp_path / "all.png").read_bytes()), grey)

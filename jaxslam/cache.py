@@ -1,0 +1,163 @@
+"""JAX's persistent compilation cache for jaxslam, on by default for the command line.
+
+XLA compiles every jitted program once per process; the filters' scanned programs
+take seconds. JAX can keep the compiled executables on disk and load them in the next
+process instead (the "persistent compilation cache"); a second ``jaxslam run``, a
+notebook re-run or a CI job with a kept cache folder then compiles nothing new.
+
+Where the cache lives, first match wins:
+
+1. the ``cache_dir`` argument of :func:`enable_compilation_cache` (the CLI's
+   ``--cache-dir DIR``; ``--no-cache`` passes ``"off"``);
+2. the environment variable ``JAXSLAM_CACHE_DIR`` (``off``, ``none``, ``0``,
+   ``false`` or an empty value disable it);
+3. ``$XDG_CACHE_HOME/jaxslam/jax``, or ``~/.cache/jaxslam/jax`` when
+   ``XDG_CACHE_HOME`` is not set.
+
+Every program is cached, however small or quick to compile
+(``jax_persistent_cache_min_compile_time_secs = 0`` and
+``jax_persistent_cache_min_entry_size_bytes = -1``): a run compiles about a hundred
+small programs besides the filter's scan, and together they cost seconds. JAX keys
+each entry by the program text, the compile options, the JAX/XLA versions and the
+device, so a stale entry is never used; a cached executable computes bit for bit
+what a freshly compiled one computes (``tests/test_cache.py`` checks this).
+
+The cache is trusted code: do not point it at a folder that others can write to.
+
+Library users call :func:`enable_compilation_cache` once, before the first
+compilation (JAX reads the folder when it first compiles)::
+
+    from jaxslam.cache import enable_compilation_cache
+    enable_compilation_cache()            # or enable_compilation_cache("/scratch/jax")
+
+:class:`CompileCounter` counts what was compiled and what came from the cache, from
+``jax.monitoring`` events.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+__all__ = [
+    "CompileCounter",
+    "DISABLED",
+    "ENV_VAR",
+    "default_cache_dir",
+    "enable_compilation_cache",
+    "resolve_cache_dir",
+]
+
+ENV_VAR = "JAXSLAM_CACHE_DIR"
+DISABLED = frozenset({"off", "none", "0", "false", "no", "disable", "disabled"})
+"""Values of ``JAXSLAM_CACHE_DIR`` (or ``cache_dir``) that turn the cache off."""
+
+_BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
+_CACHE_HITS = "/jax/compilation_cache/cache_hits"
+
+
+def default_cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/jaxslam/jax``, or ``~/.cache/jaxslam/jax``."""
+    base = os.environ.get("XDG_CACHE_HOME") or ""
+    root = Path(base).expanduser() if base.strip() else Path.home() / ".cache"
+    return root / "jaxslam" / "jax"
+
+
+def resolve_cache_dir(cache_dir: os.PathLike | str | None = None) -> Path | None:
+    """The cache folder to use, or None when the cache is off (see the module docstring)."""
+    if cache_dir is None:
+        cache_dir = os.environ.get(ENV_VAR)
+        if cache_dir is None:
+            return default_cache_dir()
+    text = str(cache_dir).strip()
+    if not text or text.lower() in DISABLED:
+        return None
+    return Path(text).expanduser()
+
+
+def enable_compilation_cache(cache_dir: os.PathLike | str | None = None) -> Path | None:
+    """Point JAX's persistent compilation cache at the jaxslam cache folder.
+
+    Call it before the first compilation of the process. Calling it again with
+    another folder re-points the cache (JAX's in-process state is reset).
+
+    Args:
+        cache_dir: a folder, ``"off"`` to disable, or None for the environment
+            variable ``JAXSLAM_CACHE_DIR`` and then the per-user default.
+
+    Returns:
+        The folder in use (created if missing), or None if the cache is off.
+
+    Raises:
+        OSError: the folder cannot be created (the message names it).
+    """
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    path = resolve_cache_dir(cache_dir)
+    current = jax.config.jax_compilation_cache_dir
+    if path is None:
+        if current is not None:
+            jax.config.update("jax_compilation_cache_dir", None)
+            compilation_cache.reset_cache()
+        return None
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OSError(
+            f"cannot create the compilation cache folder {str(path)!r} ({error.strerror or error}); "
+            f"set {ENV_VAR} to another folder or to 'off'"
+        ) from error
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    if current != str(path):
+        jax.config.update("jax_compilation_cache_dir", str(path))
+        compilation_cache.reset_cache()
+    return path
+
+
+class CompileCounter:
+    """Counts XLA compilations in a ``with`` block, from ``jax.monitoring`` events.
+
+    Attributes:
+        requests: programs that went to the backend (compiled or loaded from the cache).
+        cache_hits: of those, loaded from the persistent cache.
+        seconds: time spent in those requests (compiling or loading).
+    """
+
+    def __init__(self) -> None:
+        self.requests = 0
+        self.cache_hits = 0
+        self.seconds = 0.0
+
+    @property
+    def compiled(self) -> int:
+        """Programs XLA really compiled (requests that did not come from the cache)."""
+        return self.requests - self.cache_hits
+
+    def _on_event(self, event: str, **_kwargs) -> None:
+        if event == _CACHE_HITS:
+            self.cache_hits += 1
+
+    def _on_duration(self, event: str, duration: float, **_kwargs) -> None:
+        if event == _BACKEND_COMPILE:
+            self.requests += 1
+            self.seconds += duration
+
+    def __enter__(self) -> CompileCounter:
+        import jax.monitoring
+
+        jax.monitoring.register_event_listener(self._on_event)
+        jax.monitoring.register_event_duration_secs_listener(self._on_duration)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import jax.monitoring
+
+        jax.monitoring.unregister_event_listener(self._on_event)
+        jax.monitoring.unregister_event_duration_listener(self._on_duration)
+
+    def as_dict(self) -> dict[str, float | int]:
+        """``{"programs", "compiled", "cache_hits", "seconds"}`` for a summary."""
+        return {"programs": self.requests, "compiled": self.compiled,
+                "cache_hits": self.cache_hits, "seconds": round(self.seconds, 3)}

@@ -1,0 +1,139 @@
+"""The persistent compilation cache (jaxslam.cache): where it lives, that a warm cache
+compiles nothing new in a fresh process, and that cached programs compute bit for bit
+what freshly compiled ones do."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from jaxslam.cache import ENV_VAR, default_cache_dir, resolve_cache_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# A small program built from library kernels: a scanned particle step (SE(2)
+# composition, Gaussian log-densities, systematic resampling) plus a few eager ops.
+PROGRAM = r"""
+import json, sys
+from jaxslam.cache import CompileCounter, enable_compilation_cache
+path = enable_compilation_cache(sys.argv[1] if len(sys.argv) > 1 else None)
+import jax, jax.numpy as jnp
+from jaxslam.core import resampling, se2
+from jaxslam.core.gaussian import log_pdf
+
+def step(carry, key):
+    poses, log_w = carry
+    k1, k2 = jax.random.split(key)
+    noise = 0.05 * jax.random.normal(k1, poses.shape, poses.dtype)
+    poses = jax.vmap(se2.compose)(poses, noise + jnp.array([0.1, 0.0, 0.02], poses.dtype))
+    log_w = log_w + jax.vmap(lambda p: log_pdf(p[:2] - 1.0, 0.5 * jnp.eye(2, dtype=p.dtype)))(poses)
+    index = resampling.systematic(k2, log_w)
+    return (poses[index], jnp.zeros_like(log_w)), poses.mean(0)
+
+@jax.jit
+def run(key):
+    poses = jnp.zeros((64, 3), jnp.float32)
+    return jax.lax.scan(step, (poses, jnp.zeros(64, jnp.float32)), jax.random.split(key, 50))
+
+with CompileCounter() as counter:
+    (poses, _), means = run(jax.random.key(3))
+    extra = jnp.cumsum(jnp.sin(means[:, 0])) * 2.0
+print(json.dumps({"cache": None if path is None else str(path), "counts": counter.as_dict(),
+                  "result": [poses.tobytes().hex(), means.tobytes().hex(), extra.tobytes().hex()]}))
+"""
+
+
+def _run(args: list[str], env_extra: dict[str, str]) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **env_extra}
+    proc = subprocess.run([sys.executable, "-c", PROGRAM, *args], capture_output=True, text=True, env=env,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_cache_dir_resolution(monkeypatch, tmp_path):
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert default_cache_dir() == tmp_path / "xdg" / "jaxslam" / "jax"
+    assert resolve_cache_dir() == tmp_path / "xdg" / "jaxslam" / "jax"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert resolve_cache_dir() == Path.home() / ".cache" / "jaxslam" / "jax"
+    monkeypatch.setenv(ENV_VAR, str(tmp_path / "env"))
+    assert resolve_cache_dir() == tmp_path / "env"
+    assert resolve_cache_dir(tmp_path / "arg") == tmp_path / "arg"  # the argument wins
+    for off in ("off", "OFF", "none", "0", "", " false "):
+        monkeypatch.setenv(ENV_VAR, off)
+        assert resolve_cache_dir() is None
+        assert resolve_cache_dir(off) is None
+
+
+def test_warm_cache_compiles_nothing_and_results_are_bit_identical(tmp_path):
+    cache = tmp_path / "cache"
+    cold = _run([], {ENV_VAR: str(cache)})
+    assert cold["cache"] == str(cache)
+    assert cold["counts"]["compiled"] >= 2 and cold["counts"]["cache_hits"] == 0
+    assert any(cache.iterdir())
+    warm = _run([], {ENV_VAR: str(cache)})
+    assert warm["counts"]["compiled"] == 0, warm["counts"]
+    assert warm["counts"]["cache_hits"] == cold["counts"]["programs"]
+    off = _run(["off"], {ENV_VAR: str(cache)})  # the argument overrides the variable
+    assert off["cache"] is None and off["counts"]["cache_hits"] == 0 and off["counts"]["compiled"] >= 2
+    assert cold["result"] == warm["result"] == off["result"]
+
+
+def test_cli_no_cache_and_cache_dir_flags(tmp_path):
+    from jaxslam import cli
+
+    args = cli.build_parser().parse_args(["run", "--no-cache", "--out", str(tmp_path)])
+    assert args.no_cache and args.cache_dir is None
+    args = cli.build_parser().parse_args(["run", "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path)])
+    assert args.cache_dir == tmp_path / "c"
+
+
+@pytest.mark.slow
+def test_cli_runs_identical_cold_warm_and_off(tmp_path):
+    """Whole `jaxslam run`s in fresh processes: same files with the cache cold, warm and off."""
+    cache = tmp_path / "cache"
+    outputs = {}
+    for name, flags in (("cold", ["--cache-dir", str(cache)]), ("warm", ["--cache-dir", str(cache)]),
+                        ("off", ["--no-cache"])):
+        out = tmp_path / name
+        proc = subprocess.run(
+            [sys.executable, "-m", "jaxslam.cli", "run", "--max-steps", "20", "--particles", "8", "--no-plots",
+             "--no-progress", "--out", str(out), *flags],
+            capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=600)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        outputs[name] = (out / "trajectory.tum").read_bytes(), (out / "landmarks.csv").read_bytes()
+        summary = json.loads((out / "summary.json").read_text())
+        if name == "warm":
+            assert summary["compilations"]["compiled"] == 0, summary["compilations"]
+            assert summary["compilations"]["cache_hits"] > 0
+        if name == "off":
+            assert summary["cache_dir"] is None and summary["compilations"]["cache_hits"] == 0
+    assert outputs["cold"] == outputs["warm"] == outputs["off"]
+
+
+def test_unusable_cache_folder(tmp_path, monkeypatch, capsys):
+    """An explicit folder that cannot be made is an error naming it; an unusable
+    default only costs the cache (a warning), never the run."""
+    from jaxslam import cache, cli
+
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    with pytest.raises(OSError, match="cannot create the compilation cache folder"):
+        cache.enable_compilation_cache(blocker / "sub")
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
+    args = cli.build_parser().parse_args(["run", "--out", str(tmp_path / "o"), "--list-params"])
+    args.list_params = False
+    monkeypatch.setattr("jaxslam.runs.run_from_args", lambda _args: None)
+    assert cli.cmd_run(args) == 0
+    assert "running without the compilation cache" in capsys.readouterr().err
+    args.cache_dir = blocker / "sub"
+    with pytest.raises(cli.CliError, match="cannot create"):
+        cli.cmd_run(args)
