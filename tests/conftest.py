@@ -9,6 +9,11 @@ and follows the dtype of its inputs, so tests that want float32 pass float32 arr
 import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
+# Tests that call the CLI in-process would otherwise switch the whole pytest process
+# onto the per-user persistent compilation cache (shared with every run on the
+# machine); one full-suite run aborted inside XLA while compiling-and-writing to it.
+# The cache's own tests set their folders explicitly (in subprocesses).
+os.environ.setdefault("JAXSLAM_CACHE_DIR", "off")
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
