@@ -29,6 +29,22 @@ settings.register_profile("explore", derandomize=False, deadline=None, max_examp
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _fresh_jax_per_module():
+    """After each test module: no persistent compilation cache left switched on, and
+    JAX's in-memory caches dropped. The full suite in one process had aborted inside
+    XLA while compiling-and-writing to a cache that an earlier module had switched on
+    (JAX memoises whether the cache is used until ``reset_cache``), and it keeps every
+    compiled program of every module alive otherwise."""
+    yield
+    from jax.experimental.compilation_cache import compilation_cache
+
+    if jax.config.jax_compilation_cache_dir is not None:
+        jax.config.update("jax_compilation_cache_dir", None)
+    compilation_cache.reset_cache()
+    jax.clear_caches()
+
+
 @pytest.fixture(params=[np.float32, np.float64], ids=["f32", "f64"])
 def dtype(request):
     return request.param
