@@ -33,9 +33,6 @@ from jaxslam.metrics.trajectory_io import interpolate_poses, se2_between
 
 ALGORITHMS = ("srupf-gm", "srupf-gm-npc", "gmapping")
 
-# Per-dataset parameter defaults (on top of default_params).
-DATASET_PARAMS: dict[str, dict[str, Any]] = {}
-
 # Keyframe rule (GMapping's linearUpdate m, angularUpdate rad, temporalUpdate s; a
 # negative temporal update disables it).
 DEFAULT_KEYFRAMES = (1.0, 0.5, -1.0)
@@ -254,8 +251,7 @@ def run_grid_slam(
     odom = log.odom_poses[keyframes]
     controls = se2_between(odom[:-1], odom[1:])
 
-    overrides = dict(DATASET_PARAMS.get(name, {}))
-    overrides.update(params or {})
+    overrides = dict(params or {})
     angles = overrides.pop("beam_angles", log.angles)
     laser_offset = overrides.pop("laser_offset", log.laser_offset)
     prm: GridSlamParams = default_params(angles, laser_offset, num_particles=particles, dtype=dtype, **overrides)
