@@ -81,28 +81,38 @@ def plot_grid_map(log_odds, resolution: float, origin, trajectory=None, title: s
     The view is cropped to the observed cells (non-zero log-odds) plus a 1 m margin;
     maps larger than 2048 cells are drawn from k x k block means.
     """
-    log_odds = np.asarray(log_odds, np.float32)
-    observed = np.abs(log_odds) > 1e-6
-    if observed.any():
+    log_odds = np.asarray(log_odds)
+    observed_rows = np.zeros(log_odds.shape[0], bool)
+    observed_cols = np.zeros(log_odds.shape[1], bool)
+    step = max(1, (1 << 22) // max(log_odds.shape[1], 1))  # rows per block: bounded temporaries
+    for r0 in range(0, log_odds.shape[0], step):
+        observed = np.abs(log_odds[r0 : r0 + step]) > 1e-6
+        observed_rows[r0 : r0 + step] = observed.any(1)
+        observed_cols |= observed.any(0)
+    if observed_rows.any():
         pad = int(np.ceil(1.0 / resolution))
-        rows, cols = np.nonzero(observed.any(1))[0], np.nonzero(observed.any(0))[0]
+        rows, cols = np.nonzero(observed_rows)[0], np.nonzero(observed_cols)[0]
         r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, log_odds.shape[0])
         c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, log_odds.shape[1])
         log_odds = log_odds[r0:r1, c0:c1]
         origin = (origin[0] + c0 * resolution, origin[1] + r0 * resolution)
     h, w = log_odds.shape
-    extent = [origin[0], origin[0] + w * resolution, origin[1], origin[1] + h * resolution]
     # A figure is about 1000 pixels wide: average blocks of k x k cells first so that
     # at most ~2000 x 2000 values reach matplotlib, whose resampling of a full-size
-    # big map took seconds (the map files keep every cell).
+    # big map took seconds (the map files keep every cell). Done k rows at a time, so
+    # a big map needs no full-size float copy.
     k = max(1, -(-max(h, w) // _MAX_FIGURE_CELLS))
-    with np.errstate(over="ignore"):
-        free = 1.0 / (1.0 + np.exp(log_odds))  # 1 - p(occupied)
-    if k > 1:
-        hk, wk = -(-h // k) * k, -(-w // k) * k
-        padded = np.pad(free, ((0, hk - h), (0, wk - w)), mode="edge")
-        free = padded.reshape(hk // k, k, wk // k, k).mean(axis=(1, 3))
-        extent = [origin[0], origin[0] + wk * resolution, origin[1], origin[1] + hk * resolution]
+    hk, wk = -(-h // k) * k, -(-w // k) * k
+    free = np.empty((hk // k, wk // k), np.float32)
+    group = k * max(1, (1 << 22) // (wk * k))  # rows per block, a multiple of k
+    for r0 in range(0, h, group):
+        block = np.asarray(log_odds[r0 : r0 + group], np.float32)
+        rows = -(-block.shape[0] // k) * k
+        block = np.pad(block, ((0, rows - block.shape[0]), (0, wk - w)), mode="edge")
+        with np.errstate(over="ignore"):
+            block = 1.0 / (1.0 + np.exp(block))  # 1 - p(occupied)
+        free[r0 // k : (r0 + rows) // k] = block.reshape(rows // k, k, wk // k, k).mean(axis=(1, 3))
+    extent = [origin[0], origin[0] + wk * resolution, origin[1], origin[1] + hk * resolution]
     fig, ax = plt.subplots(figsize=(8, 8 * h / max(w, 1) + 0.5))
     ax.imshow(free, cmap="gray", origin="lower", extent=extent, vmin=0, vmax=1)
     if trajectory is not None:

@@ -202,7 +202,7 @@ def run_grid_slam(
     angular_update: float | None = None,
     temporal_update: float | None = None,
     resolution: float = 0.05,
-    margin: float = 20.0,
+    margin: float | None = None,
     bounds: tuple[float, float, float, float] | None = None,
     pool_slots: int | None = None,
     max_keyframes: int | None = None,
@@ -230,7 +230,11 @@ def run_grid_slam(
             1.0 m, 0.5 rad, no temporal update.
         resolution: cell size (m).
         margin: margin (m) around the odometry box for the starting page table
-            (:func:`map_layout`; the maps grow beyond it when needed).
+            (:func:`map_layout`; the maps grow beyond it when needed). ``None``: the
+            static beam reach (``window_range``) plus 10 m for odometry drift, so that
+            a run whose corrected path stays near its odometry never grows the table
+            (each growth costs a compilation; a table entry costs 4 bytes per 3.2 m
+            tile and particle).
         bounds: a starting map box ``(xmin, ymin, xmax, ymax)`` instead.
         pool_slots: starting pool size in tiles (default: :func:`map_layout`'s
             estimate); it doubles whenever a step needs more.
@@ -264,6 +268,8 @@ def run_grid_slam(
     # the usable range rounded up to 10 m, so that sweeping usable_range below it
     # never recompiles.
     window_range = float(cfg_over.pop("window_range", max(20.0, 10.0 * np.ceil(usable / 10.0))))
+    if margin is None:
+        margin = window_range + 10.0
     layout = map_layout(log, keyframes, resolution, margin, particles, window_range, bounds)
     if pool_slots is not None:
         layout = dataclasses.replace(layout, slots=int(pool_slots))

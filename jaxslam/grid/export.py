@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 OCCUPIED, FREE, UNKNOWN = 0, 254, 205
+_BLOCK_CELLS = 1 << 22  # cells converted per block in occupancy_image
 
 
 def occupancy_image(log_odds: np.ndarray, occupied_thresh: float = 0.65, free_thresh: float = 0.196) -> np.ndarray:
@@ -39,18 +40,28 @@ def occupancy_image(log_odds: np.ndarray, occupied_thresh: float = 0.65, free_th
     ``1e-6`` of a threshold (where rounding could decide) get ``p`` in float64 as
     before, so the image is exactly the one of the formula.
     """
-    lo = np.asarray(log_odds, np.float64)
-    img = np.full(lo.shape, UNKNOWN, np.uint8)
+    src = np.asarray(log_odds)
+    if src.ndim != 2:
+        raise ValueError(f"log_odds must be (H, W), got shape {src.shape}")
+    h = src.shape[0]
+    img = np.empty(src.shape, np.uint8)
     occupied_lo = math.log(occupied_thresh / (1.0 - occupied_thresh))
     free_lo = math.log(free_thresh / (1.0 - free_thresh))
-    with np.errstate(invalid="ignore"):
-        img[lo > occupied_lo] = OCCUPIED
-        img[lo < free_lo] = FREE
-        near = (np.abs(lo - occupied_lo) < 1e-6) | (np.abs(lo - free_lo) < 1e-6)
-    if near.any():
-        p = 1.0 / (1.0 + np.exp(-lo[near]))
-        img[near] = np.where(p > occupied_thresh, OCCUPIED, np.where(p < free_thresh, FREE, UNKNOWN))
-    return np.ascontiguousarray(img[::-1])
+    # Blocks of rows keep the float64 temporaries small (a 5000 x 7700 map would
+    # otherwise need about 1 GB of them); the image is written upside down directly.
+    rows = max(1, _BLOCK_CELLS // max(src.shape[1], 1))
+    for r0 in range(0, h, rows):
+        lo = src[r0 : r0 + rows].astype(np.float64)
+        block = np.full(lo.shape, UNKNOWN, np.uint8)
+        with np.errstate(invalid="ignore"):
+            block[lo > occupied_lo] = OCCUPIED
+            block[lo < free_lo] = FREE
+            near = (np.abs(lo - occupied_lo) < 1e-6) | (np.abs(lo - free_lo) < 1e-6)
+        if near.any():
+            p = 1.0 / (1.0 + np.exp(-lo[near]))
+            block[near] = np.where(p > occupied_thresh, OCCUPIED, np.where(p < free_thresh, FREE, UNKNOWN))
+        img[h - r0 - lo.shape[0] : h - r0] = block[::-1]
+    return img
 
 
 def write_pgm(path: os.PathLike | str, image: np.ndarray) -> None:
@@ -89,28 +100,49 @@ def _png_chunk(tag: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
 
 
-def write_png(path: os.PathLike | str, image: np.ndarray, compress_level: int = 1) -> None:
+def write_png(
+    path: os.PathLike | str,
+    image: np.ndarray,
+    compress_level: int = 1,
+    marks: tuple[np.ndarray, np.ndarray] | None = None,
+    mark_color: tuple[int, int, int] = (220, 30, 30),
+) -> None:
     """8-bit greyscale (``(H, W)``) or RGB (``(H, W, 3)``) image as an RGBA PNG.
 
     The pixels are what ``matplotlib.image.imsave`` writes for these images (grey
     ``v`` as ``(v, v, v, 255)``, alpha 255), encoded here directly: one IDAT of
     unfiltered rows compressed by zlib at ``compress_level`` (1: fast; a 4000 x 4000
     map in well under a second, where imsave's colormap pass and level-6 compression
-    took several times longer).
+    took several times longer). Rows are converted and compressed in blocks, so a
+    big map needs no full-size RGBA copy. ``marks``: ``(rows, cols)`` pixel indices
+    drawn in ``mark_color`` (the same as setting them in an RGB image first).
     """
     image = np.asarray(image, np.uint8)
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
         raise ValueError(f"image must be (H, W) or (H, W, 3), got {image.shape}")
     height, width = image.shape[:2]
-    rows = np.empty((height, 1 + 4 * width), np.uint8)
-    rows[:, 0] = 0  # filter type None
-    pixels = rows[:, 1:].reshape(height, width, 4)
-    pixels[..., :3] = image[..., None] if image.ndim == 2 else image
-    pixels[..., 3] = 255
+    if marks is not None:
+        mark_rows, mark_cols = (np.asarray(m, np.int64) for m in marks)
+        order = np.argsort(mark_rows, kind="stable")
+        mark_rows, mark_cols = mark_rows[order], mark_cols[order]
+    compressor = zlib.compressobj(compress_level)
+    pieces = []
+    block = max(1, (1 << 22) // max(4 * width + 1, 1))
+    for r0 in range(0, height, block):
+        r1 = min(r0 + block, height)
+        rows = np.empty((r1 - r0, 1 + 4 * width), np.uint8)
+        rows[:, 0] = 0  # filter type None
+        pixels = rows[:, 1:].reshape(r1 - r0, width, 4)
+        pixels[..., :3] = image[r0:r1, :, None] if image.ndim == 2 else image[r0:r1]
+        pixels[..., 3] = 255
+        if marks is not None:
+            lo, hi = np.searchsorted(mark_rows, [r0, r1])
+            pixels[mark_rows[lo:hi] - r0, mark_cols[lo:hi], :3] = mark_color
+        pieces.append(compressor.compress(rows.tobytes()))
+    pieces.append(compressor.flush())
     header = struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0)  # 8-bit RGBA
-    data = zlib.compress(rows.tobytes(), compress_level)
     with open(path, "wb") as handle:
-        handle.write(b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header) + _png_chunk(b"IDAT", data)
+        handle.write(b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header) + _png_chunk(b"IDAT", b"".join(pieces))
                      + _png_chunk(b"IEND", b""))
 
 
@@ -164,16 +196,14 @@ def save_map(
     paths = {"pgm": out / f"{name}.pgm", "yaml": out / f"{name}.yaml", "png": out / f"{name}.png"}
     write_pgm(paths["pgm"], image)
     write_map_yaml(paths["yaml"], paths["pgm"].name, resolution, origin, occupied_thresh, free_thresh)
-    png = image
+    marks = None
     if trajectory is not None:
-        rgb = np.repeat(image[..., None], 3, -1)
         traj = np.asarray(trajectory, np.float64)[:, :2]
         cols = np.floor((traj[:, 0] - origin[0]) / resolution).astype(int)
         rows = image.shape[0] - 1 - np.floor((traj[:, 1] - origin[1]) / resolution).astype(int)
         ok = (cols >= 0) & (cols < image.shape[1]) & (rows >= 0) & (rows < image.shape[0])
-        rgb[rows[ok], cols[ok]] = (220, 30, 30)
-        png = rgb
-    write_png(paths["png"], png)
+        marks = (rows[ok], cols[ok])
+    write_png(paths["png"], image, marks=marks)
     return paths
 
 
