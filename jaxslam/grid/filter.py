@@ -88,7 +88,10 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
     dtype = params.beam_angles.dtype
     n = config.num_particles
     pose = jnp.asarray(initial_pose, dtype)
-    one = init_maps(1, config.layout)
+    # The barrier keeps XLA from constant-folding the empty maps through the first
+    # write (a cumulative sum over every free slot, which took seconds to fold at
+    # compile time for large pools).
+    one = jax.lax.optimization_barrier(init_maps(1, config.layout))
     one, _, status = integrate_scan(one, pose[None], observation, params, config)
     tables = jnp.broadcast_to(one.tables, (n, one.tables.shape[1]))
     maps = resample_maps(one._replace(tables=tables), jnp.arange(n), jnp.asarray(True))
