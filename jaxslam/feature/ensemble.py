@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.driver import scan_steps
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.experiment import ALGORITHMS, params_for
 from jaxslam.feature.params import Config, Params
@@ -55,13 +56,8 @@ class LandmarkEnsembleResult:
 
 def _one_seed(key, params, controls, observations, obs_mask, initial_pose, config):
     state = feature_filter.init(key, params, config, initial_pose)
-    keys = feature_filter.step_keys(key, controls.shape[0])
-
-    def body(s, xs):
-        k, u, z, m = xs
-        return feature_filter.step(k, s, u, feature_filter.Observation(z, m), params, config)
-
-    return jax.lax.scan(body, state, (keys, controls, observations, obs_mask))
+    observation = feature_filter.Observation(observations, obs_mask)
+    return scan_steps(feature_filter.step, key, state, controls, observation, params, config)
 
 
 _PROGRAMS: dict[Config, Any] = {}

@@ -4,9 +4,10 @@
 ``observations (T, Z, 2)`` and ``obs_mask (T, Z)`` (Victoria Park or the simulator),
 builds :class:`~jaxslam.feature.params.Params` for it (the paper's noise, the car
 geometry from the sequence's ``meta``), runs the filter in jitted chunks with a
-progress bar (:func:`jaxslam.progress.run_scan_chunked`; compilation timed apart) and
-returns the trajectory, the map of the highest-weight particle and the per-step
-``Info`` as NumPy arrays.
+progress bar (:func:`jaxslam.progress.run_scan_chunked` with the chunk runner cached per
+static config, :func:`jaxslam.driver.chunk_runner`; compilation timed apart) and
+returns the trajectory, the map of the best particle (:func:`jaxslam.driver.best_particle`)
+and the per-step ``Info`` as NumPy arrays.
 """
 
 from __future__ import annotations
@@ -19,10 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.driver import best_particle, chunk_runner, scan_steps, step_keys
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.params import Config, Params
 from jaxslam.models.vehicle import CarGeometry
-from jaxslam.progress import make_chunk_runner, run_scan_chunked
+from jaxslam.progress import run_scan_chunked
 
 ALGORITHMS = {"erb-upf": "erb", "rb-upf": "rb", "erb": "erb", "rb": "rb"}
 
@@ -37,7 +39,8 @@ class LandmarkSlamResult:
         trajectory: (T, 3) weighted mean pose after each step (for Victoria Park the
             laser's position and the car's heading).
         pose_covs: (T, 3, 3) weighted covariance of the particle poses.
-        landmark_means: (M, 2) active landmarks of the highest-weight particle.
+        landmark_means: (M, 2) active landmarks of the best particle
+            (:func:`jaxslam.driver.best_particle`).
         landmark_covs: (M, 2, 2) their covariances.
         info: every :class:`~jaxslam.feature.filter.Info` field, stacked over T.
         wall_s: run time after compilation [s].
@@ -98,25 +101,6 @@ def params_for(sequence: Any, **overrides: Any) -> Params:
     return Params(**values)
 
 
-_RUNNERS: dict[Config, Any] = {}
-
-
-def _runner(config: Config):
-    """One chunk runner per configuration, so a sweep over params compiles once."""
-    if config not in _RUNNERS:
-
-        def step_fn(carry, xs):
-            state, params = carry
-            key, control, values, mask = xs
-            state, info = feature_filter.step(
-                key, state, control, feature_filter.Observation(values, mask), params, config
-            )
-            return (state, params), info
-
-        _RUNNERS[config] = make_chunk_runner(step_fn)
-    return _RUNNERS[config]
-
-
 def run_landmark_slam(
     sequence: Any,
     algorithm: str = "erb-upf",
@@ -157,19 +141,18 @@ def run_landmark_slam(
     state = feature_filter.init(key, params, cfg, jnp.zeros(3, dtype))
     params_arr = feature_filter.cast_params(params, dtype)
     xs = (
-        feature_filter.step_keys(key, steps),
+        step_keys(key, steps),
         jnp.asarray(sequence.controls, dtype),
-        jnp.asarray(sequence.observations, dtype),
-        jnp.asarray(sequence.obs_mask, bool),
+        feature_filter.Observation(jnp.asarray(sequence.observations, dtype), jnp.asarray(sequence.obs_mask, bool)),
     )
     extra = {} if checkpoint is None else {"checkpoint": checkpoint}
     (state, _), infos, timing = run_scan_chunked(
-        None, (state, params_arr), xs, chunk=chunk, desc=algorithm, progress=progress, runner=_runner(cfg),
-        callback=callback, **extra,
+        None, (state, params_arr), xs, chunk=chunk, desc=algorithm, progress=progress,
+        runner=chunk_runner(feature_filter.step, cfg), callback=callback, **extra,
     )
     state = jax.tree_util.tree_map(np.asarray, state)
     info = {name: np.asarray(value) for name, value in infos._asdict().items()}
-    best = int(np.argmax(np.asarray(state.log_weights)))
+    best = int(best_particle(state))
     table = jax.tree_util.tree_map(lambda x: np.asarray(x[best]), state.landmarks)
     return LandmarkSlamResult(
         algorithm=algorithm,
@@ -227,15 +210,9 @@ class LandmarkSeedsResult:
 def _run_seeds(keys, controls, observations, obs_mask, params, config, initial_pose):
     def one(key, controls, observations, obs_mask):
         state = feature_filter.init(key, params, config, initial_pose)
-        step_keys = feature_filter.step_keys(key, controls.shape[0])
-
-        def body(s, xs):
-            k, u, z, m = xs
-            return feature_filter.step(k, s, u, feature_filter.Observation(z, m), params, config)
-
-        state, infos = jax.lax.scan(body, state, (step_keys, controls, observations, obs_mask))
-        best = jnp.argmax(state.log_weights)
-        return infos, state.landmarks.count[best]
+        observation = feature_filter.Observation(observations, obs_mask)
+        state, infos = scan_steps(feature_filter.step, key, state, controls, observation, params, config)
+        return infos, state.landmarks.count[best_particle(state)]
 
     per_seed = controls.ndim == 4
     axes = (0, 0, 0, 0) if per_seed else (0, None, None, None)

@@ -25,8 +25,15 @@ One step (one laser scan), for every particle (``vmap``):
    (:mod:`jaxslam.feature.landmarks`).
 6. **Selective resampling** when ESS < ``resample_threshold`` N.
 
+``init``/``step``/``run`` follow the protocol of every filter (:mod:`jaxslam.driver`):
+step keys ``jaxslam.driver.step_keys(key, T)``, ``Info`` with ``ess``, ``resampled`` and
+``ancestors``. **Best particle**: the particle with the largest accumulated
+log-likelihood (``State.cumulative_log_likelihood``, the sum of its eq. 11 increments
+over its history, carried through resampling), as in the grid filters; not the
+highest current weight, which after a resampling is the same for every particle.
+
 ``Info`` per step carries the weighted pose estimate and covariance, ESS, whether it
-resampled, the weight variance, and the paper's Fig. 1 quantity
+resampled and the ancestors, the weight variance, and the paper's Fig. 1 quantity
 :math:`\log \sum_m w^{[m]} \det P^{[m]}` for both the ERB and the RB proposal computed
 on the same particles (NaN when no particle was updated).
 
@@ -67,6 +74,7 @@ from jax.scipy.special import logsumexp
 from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
 from jaxslam.core.se2 import pose_residual, wrap_angle
 from jaxslam.core.sigma import sigma_points, ut_weights
+from jaxslam.driver import best_particle, scan_runner
 from jaxslam.feature import _small
 from jaxslam.feature.association import associate
 from jaxslam.feature.landmarks import LandmarkTable, empty_table, free_slots, local_slots
@@ -96,12 +104,16 @@ class State(NamedTuple):
         pose_sqrts: ``(N, 3, 3)`` lower factor of the pose covariance accumulated since
             the last sampling (the predicted covariance ``P-bar``).
         log_weights: ``(N,)`` normalised log-weights.
+        cumulative_log_likelihood: ``(N,)`` the sum of the particle's log weight
+            increments (eq. 11) over its whole history, carried through resampling;
+            its argmax is the best particle (:func:`jaxslam.driver.best_particle`).
         landmarks: :class:`LandmarkTable` with leading axis ``N``.
     """
 
     pose_means: Array
     pose_sqrts: Array
     log_weights: Array
+    cumulative_log_likelihood: Array
     landmarks: LandmarkTable
 
 
@@ -112,6 +124,7 @@ class Info(NamedTuple):
     pose_cov: Array  # (3, 3) weighted covariance of the particle poses
     ess: Array  # effective sample size before resampling
     resampled: Array  # bool
+    ancestors: Array  # (N,) int32 resampling ancestors (the identity when it did not resample)
     weight_variance: Array  # variance of the normalised weights before resampling
     log_det_proposal_erb: Array  # log sum_m w_m det P_ERB^[m] (updated particles), NaN if none
     log_det_proposal_rb: Array  # the same for the RB proposal on the same particles
@@ -120,9 +133,9 @@ class Info(NamedTuple):
     num_new: Array  # mean new landmarks per particle
     num_dropped: Array  # new landmarks dropped because a table was full (all particles)
     local_overflow: Array  # most local candidates left out in one particle
-    num_landmarks: Array  # landmarks of the highest-weight particle
+    num_landmarks: Array  # landmarks of the best particle
     num_landmarks_mean: Array  # weighted mean number of landmarks
-    best_particle: Array  # int32 index of the highest-weight particle
+    best_particle: Array  # int32 index of the best particle (largest cumulative_log_likelihood), before resampling
     num_invalid_controls: Array  # int32 control rows with a non-finite value (run as dt = 0)
     num_invalid_observations: Array  # int32 real observation rows that are non-finite or range <= 0 (masked out)
     num_nonfinite_particles: Array  # int32 particles whose new pose/weight was not finite (not propagated)
@@ -140,14 +153,16 @@ def cast_params(params: Params, dtype) -> Params:
     return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), params)
 
 
+@partial(jax.jit, static_argnames=("config",))
 def init(key: Array, params: Params, config: Config, initial_pose: Array | None = None) -> State:
     """All particles at ``initial_pose`` (default the origin), empty maps, equal weights.
 
     The dtype of the filter is that of ``initial_pose`` (default float: float32, or
-    float64 under ``jax_enable_x64``). ``key`` is unused (a deterministic start) but
-    kept first for the common signature.
+    float64 under ``jax_enable_x64``). Jitted (one compilation per config). ``key`` is
+    unused (a deterministic start, as the grid filters' ``init``) but kept first for
+    the common signature (:mod:`jaxslam.driver`).
     """
-    del key
+    del key  # the initial state is deterministic; the key keeps the protocol's signature
     pose = jnp.zeros(3) if initial_pose is None else jnp.asarray(initial_pose)
     if not jnp.issubdtype(pose.dtype, jnp.floating):
         pose = pose.astype(float)
@@ -158,6 +173,7 @@ def init(key: Array, params: Params, config: Config, initial_pose: Array | None 
         pose_means=jnp.broadcast_to(pose, (n, 3)),
         pose_sqrts=jnp.broadcast_to(reset * jnp.eye(3, dtype=dtype), (n, 3, 3)),
         log_weights=jnp.full((n,), -jnp.log(jnp.asarray(n, dtype))),
+        cumulative_log_likelihood=jnp.zeros((n,), dtype),
         landmarks=empty_table(config.capacity, dtype, (n,)),
     )
 
@@ -474,12 +490,14 @@ def _weighted_log_det(log_weights: Array, log_dets: Array, used: Array) -> Array
     return jnp.where(jnp.any(used), value, jnp.nan)
 
 
-def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array, Array]:
-    """Weighted mean pose (heading averaged about the best particle), covariance of
-    the particle mixture, weights and the best particle."""
+def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array]:
+    """Weighted mean pose, covariance of the particle mixture and the weights.
+
+    The mean heading is averaged about the pose of the highest-weight particle (the
+    particle nearest the mean, so that the residuals do not wrap); that reference is
+    a numerical choice only, not the best particle."""
     weights = jnp.exp(log_weights)
-    best = jnp.argmax(log_weights)
-    ref = state.pose_means[best]
+    ref = state.pose_means[jnp.argmax(log_weights)]
     dev = jax.vmap(pose_residual, (0, None))(state.pose_means, ref)
     shift = weights @ dev
     estimate = ref + shift
@@ -487,7 +505,7 @@ def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array, Arr
     dev = dev - shift
     spread = jnp.einsum("m,mi,mj->ij", weights, dev, dev)
     own = jnp.einsum("m,mij,mkj->ik", weights, state.pose_sqrts, state.pose_sqrts)
-    return estimate, spread + own, weights, best
+    return estimate, spread + own, weights
 
 
 def _finish(
@@ -498,10 +516,11 @@ def _finish(
     config: Config,
     invalid: tuple[Array, Array],
     observation_mask: Array,
-) -> tuple[State, Info, Array]:
+) -> tuple[State, Info]:
     dtype = state.pose_means.dtype
     log_w = normalize_log_weights(state.log_weights)
-    estimate, cov, weights, best = _summary(state, log_w)
+    estimate, cov, weights = _summary(state, log_w)
+    best = best_particle(state)
     ess = effective_sample_size(log_w)
     if out is None:
         nan = jnp.full((), jnp.nan, dtype)
@@ -542,6 +561,7 @@ def _finish(
         pose_cov=cov,
         ess=ess,
         resampled=resampled,
+        ancestors=ancestors.astype(jnp.int32),
         weight_variance=jnp.var(weights),
         num_landmarks=state.landmarks.count[best],
         num_landmarks_mean=weights @ state.landmarks.count.astype(dtype),
@@ -554,7 +574,7 @@ def _finish(
         num_landmarks_max=jnp.max(state.landmarks.count),
         **extra,
     )
-    return new_state, info, ancestors
+    return new_state, info
 
 
 def clean_inputs(control: Array, observation: Observation) -> tuple[Array, Observation, Array, Array]:
@@ -592,16 +612,11 @@ def step(
         observation: :class:`Observation` of this scan.
         params: traced parameters.
         config: static configuration.
+
+    Returns:
+        ``(state, info)``; ``info.ancestors`` are the resampling ancestors ``(N,)``
+        (the identity when it did not resample).
     """
-    new_state, info, _ = step_with_ancestors(key, state, control, observation, params, config)
-    return new_state, info
-
-
-def step_with_ancestors(
-    key: Array, state: State, control: Array, observation: Observation, params: Params, config: Config
-) -> tuple[State, Info, Array]:
-    """:func:`step` that also returns the resampling ancestors ``(N,)`` (the identity
-    when it did not resample), for genealogy diagnostics."""
     dtype = state.pose_means.dtype
     params = cast_params(params, dtype)
     control = jnp.asarray(control, dtype)
@@ -632,10 +647,12 @@ def step_with_ancestors(
             fits = ~jnp.any(observation.mask[half:])
             out = jax.lax.cond(fits, first_half, lambda s: particles_step(s, observation), state)
         # If every particle failed, the step changes nothing (not even the weights).
-        log_weights = jnp.where(
-            jnp.any(out.finite), state.log_weights + out.log_weight_increment, state.log_weights
+        any_finite = jnp.any(out.finite)
+        log_weights = jnp.where(any_finite, state.log_weights + out.log_weight_increment, state.log_weights)
+        cumulative = jnp.where(
+            any_finite, state.cumulative_log_likelihood + out.log_weight_increment, state.cumulative_log_likelihood
         )
-        updated = State(out.pose, out.pose_sqrt, log_weights, out.landmarks)
+        updated = State(out.pose, out.pose_sqrt, log_weights, cumulative, out.landmarks)
         return _finish(k_resample, updated, out, params, config, invalid, observation.mask)
 
     def idle_step(state):
@@ -647,42 +664,17 @@ def step_with_ancestors(
     return jax.lax.cond(moving, active_step, idle_step, state)
 
 
-def run(
-    key: Array,
-    params: Params,
-    config: Config,
-    controls: Array,
-    observations: Array,
-    obs_mask: Array,
-    initial_pose: Array | None = None,
-) -> tuple[State, Info]:
-    """Scan :func:`step` over a whole sequence.
+run = scan_runner(step)
+run.__doc__ = """Scan :func:`step` over a sequence (:func:`jaxslam.driver.scan_runner`).
 
-    Args:
-        key: PRNG key; step ``t`` uses ``split(key, T)[t]``.
-        params, config: as for :func:`step`.
-        controls: ``(T, K, 3)``.
-        observations: ``(T, Z, 2)``.
-        obs_mask: ``(T, Z)``.
-        initial_pose: ``(3,)``; its dtype sets the filter's dtype.
+Args:
+    key: PRNG key; step ``t`` uses ``jaxslam.driver.step_keys(key, T)[t]``.
+    state: from :func:`init`.
+    controls: ``(T, K, 3)``.
+    observations: :class:`Observation` stacked over ``T``: ``values (T, Z, 2)``,
+        ``mask (T, Z)``.
+    params, config: as for :func:`step`.
 
-    Returns:
-        ``(final_state, infos)`` with every :class:`Info` field stacked over ``T``.
-    """
-    state = init(key, params, config, initial_pose)
-    keys = step_keys(key, np.shape(controls)[0])
-    return _run_jit(keys, state, controls, observations, obs_mask, params, config)
-
-
-def step_keys(key: Array, num_steps: int) -> Array:
-    """The per-step keys :func:`run` uses."""
-    return jax.random.split(jax.random.fold_in(key, 1), num_steps)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(keys, state, controls, observations, obs_mask, params, config):
-    def body(s, xs):
-        k, u, z, m = xs
-        return step(k, s, u, Observation(z, m), params, config)
-
-    return jax.lax.scan(body, state, (keys, controls, observations, obs_mask))
+Returns:
+    ``(final_state, infos)`` with every :class:`Info` field stacked over ``T``.
+"""

@@ -31,6 +31,13 @@ GATES = dict(gate_new=100.0)
 CONFIG = Config(num_particles=50, capacity=96, local_size=48)
 
 
+def _run(key, seq, params, cfg, dtype=jnp.float64):
+    """``init`` then ``run`` over the whole simulated sequence in ``dtype``."""
+    state = F.init(key, params, cfg, jnp.zeros(3, dtype))
+    observations = F.Observation(jnp.asarray(seq.observations, dtype), jnp.asarray(seq.obs_mask))
+    return F.run(key, state, jnp.asarray(seq.controls, dtype), observations, params, cfg)
+
+
 @pytest.fixture(scope="module")
 def sim_runs():
     runs = {"erb": [], "rb": []}
@@ -39,9 +46,7 @@ def sim_runs():
         params = params_for(seq, **GATES)
         for proposal in runs:
             cfg = dataclasses.replace(CONFIG, proposal=proposal)
-            state, info = F.run(
-                jax.random.PRNGKey(seed), params, cfg, seq.controls, seq.observations, seq.obs_mask, jnp.zeros(3)
-            )
+            state, info = _run(jax.random.PRNGKey(seed), seq, params, cfg)
             runs[proposal].append((seq, jax.tree_util.tree_map(np.asarray, info), state))
     return runs
 
@@ -94,17 +99,17 @@ def test_same_random_streams_for_rb_and_erb(sim_runs):
 def _sim_run(seq, params, dtype=jnp.float64, proposal="erb"):
     """A run with the module's shapes, so it reuses the fixture's compiled code."""
     cfg = dataclasses.replace(CONFIG, proposal=proposal)
-    return F.run(jax.random.PRNGKey(0), params, cfg, seq.controls, seq.observations, seq.obs_mask, jnp.zeros(3, dtype))
+    return _run(jax.random.PRNGKey(0), seq, params, cfg, dtype)
 
 
 def test_no_recompilation_when_only_params_change(sim_runs):
     seq = simulate(seed=9, **SIM)
     params = params_for(seq, **GATES)
     _sim_run(seq, params)
-    size = F._run_jit._cache_size()
+    size = F.run._cache_size()
     other = params._replace(range_std=0.7, gate_associate=9.2, ut_update=params.ut_update._replace(alpha=0.8))
     _sim_run(seq, other)
-    assert F._run_jit._cache_size() == size
+    assert F.run._cache_size() == size
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])

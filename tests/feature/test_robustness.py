@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from jaxslam.datasets.landmark_sim import simulate
 from jaxslam.datasets.paths import DatasetNotFoundError
+from jaxslam.driver import step_keys
 from jaxslam.feature import filter as F
 from jaxslam.feature.experiment import params_for, run_landmark_slam
 from jaxslam.feature.params import Config
@@ -40,7 +41,7 @@ def _inputs(seq, t, dtype):
 def _warm_state(seq, params, dtype, steps=10):
     """The state after ``steps`` clean steps (a map to associate against)."""
     state = F.init(None, params, CONFIG, jnp.zeros(3, dtype))
-    keys = F.step_keys(jax.random.PRNGKey(0), steps)
+    keys = step_keys(jax.random.PRNGKey(0), steps)
     for t in range(steps):
         state, _ = F.step(keys[t], state, *_inputs(seq, t, dtype), params, CONFIG)
     return state
@@ -50,7 +51,7 @@ def _run_steps(seq, params, dtype, controls, observations, mask, seed=0):
     """Step by step (sharing ``F.step``'s compiled code with the other tests):
     ``(final state, stacked Info)``."""
     state = F.init(None, params, CONFIG, jnp.zeros(3, dtype))
-    keys = F.step_keys(jax.random.PRNGKey(seed), controls.shape[0])
+    keys = step_keys(jax.random.PRNGKey(seed), controls.shape[0])
     infos = []
     for t in range(controls.shape[0]):
         observation = F.Observation(jnp.asarray(observations[t], dtype), jnp.asarray(mask[t]))
@@ -182,8 +183,10 @@ def test_a_particle_that_goes_nan_is_reported_and_not_propagated(sim, dtype):
     keep = params._replace(resample_threshold=0.0)  # never resample: see the -inf weight
     new, info = F.step(jax.random.PRNGKey(5), state, *_inputs(sim, 10, dtype), keep, CONFIG)
     assert int(info.num_nonfinite_particles) == 1
-    assert _all_finite(new._replace(log_weights=new.log_weights[1:]))
+    assert _all_finite(new._replace(log_weights=new.log_weights[1:],
+                                    cumulative_log_likelihood=new.cumulative_log_likelihood[1:]))
     assert float(new.log_weights[0]) == -np.inf  # weight zero: resampling drops it
+    assert float(new.cumulative_log_likelihood[0]) == -np.inf  # never the best particle
     assert np.all(np.isfinite(np.asarray(info.pose_estimate))) and np.all(np.isfinite(np.asarray(info.pose_cov)))
     np.testing.assert_array_equal(new.pose_means[0], state.pose_means[0])  # kept, not propagated
     np.testing.assert_array_equal(new.landmarks.means[0], state.landmarks.means[0])
