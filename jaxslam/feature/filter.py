@@ -86,7 +86,8 @@ from jaxslam.feature.proposals import (
     innovation_terms,
     measurement_cov,
 )
-from jaxslam.models.range_bearing import inverse_observe, sensor_position
+from jaxslam.models.range_bearing import inverse_observe, observe_unwrapped, sensor_position
+from jaxslam.models.vehicle import motion_step
 
 
 class Observation(NamedTuple):
@@ -195,13 +196,13 @@ def predict_pose(pose: Array, pose_sqrt: Array, controls: Array, params: Params)
     ``dt <= 0`` are skipped. Returns the predicted mean and lower Cholesky factor.
 
     The 11 sigma points have only 7 distinct headings and 3 distinct steering angles,
-    so the trigonometry is evaluated on those alone (the same numbers as the generic
+    so the trigonometry is evaluated on those alone and the car model applied through
+    :func:`jaxslam.models.vehicle.motion_step` (the same numbers as the generic
     transform, at a third of the cost).
     """
     dtype = pose.dtype
     mean_w, cov_w, lam = ut_weights(5, params.ut_predict, dtype)
     gamma = jnp.sqrt(5 + lam)
-    geometry = params.geometry
     speed_sign = jnp.asarray(_SPEED_SIGN, dtype)
 
     def row(carry, control):
@@ -216,17 +217,7 @@ def predict_pose(pose: Array, pose_sqrt: Array, controls: Array, params: Params)
         tan = tan3[_STEER_OF_POINT]
         speed = control[0] + speed_sign * (gamma * params.speed_std)
         dt = control[2]
-        v_c = speed / (1.0 - tan * geometry.encoder_offset / geometry.wheelbase)
-        omega = v_c * tan / geometry.wheelbase
-        a, b = geometry.point_forward, geometry.point_left
-        moved = jnp.stack(
-            [
-                poses[:, 0] + dt * (v_c * cos - omega * (a * sin + b * cos)),
-                poses[:, 1] + dt * (v_c * sin + omega * (a * cos - b * sin)),
-                poses[:, 2] + dt * omega,
-            ],
-            -1,
-        )
+        moved = motion_step(poses, cos, sin, speed, tan, dt, params.geometry)
         heading = moved[0, 2] + _small.wsum(mean_w, wrap_angle(moved[:, 2] - moved[0, 2]))
         new_mean = jnp.stack([_small.wsum(mean_w, moved[:, 0]), _small.wsum(mean_w, moved[:, 1]), wrap_angle(heading)])
         dev = moved - new_mean
@@ -238,14 +229,6 @@ def predict_pose(pose: Array, pose_sqrt: Array, controls: Array, params: Params)
 
     (mean, sqrt), _ = jax.lax.scan(row, (pose, pose_sqrt), controls)
     return mean, sqrt
-
-
-def _sensor_frame(pose: Array, params: Params) -> tuple[Array, Array, Array]:
-    """Sensor position ``(2,)`` and ``cos``, ``sin`` of the heading of ``pose``."""
-    offset = jnp.asarray(params.sensor_offset, pose.dtype)
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    xy = jnp.stack([pose[0] + c * offset[0] - s * offset[1], pose[1] + s * offset[0] + c * offset[1]])
-    return xy, c, s
 
 
 def _cov_floor(cov: Array, mean: Array) -> Array:
@@ -281,12 +264,9 @@ def update_landmark(
     mean_w, cov_w, _ = ut_weights(2, params.ut_landmark, dtype)
     points = sigma_points(mean, _small.chol2(cov), params.ut_landmark)
     sensor = sensor_position(pose, jnp.asarray(params.sensor_offset, dtype))
-    d = points - sensor
-    dx, dy = d[:, 0], d[:, 1]
-    # bearings unwrapped about the centre point's (see proposals._assemble)
-    bearing0 = jnp.arctan2(dy[0], dx[0]) - pose[2]
-    bearing = bearing0 + jnp.arctan2(dx[0] * dy - dy[0] * dx, dx[0] * dx + dy[0] * dy)
-    y = jnp.stack([jnp.sqrt(dx * dx + dy * dy), bearing], -1)
+    count = points.shape[0]
+    # bearings unwrapped about the centre point's, so that their weighted mean is valid
+    y = observe_unwrapped(jnp.broadcast_to(sensor, (count, 2)), jnp.broadcast_to(pose[2], (count,)), points)
     y_mean = _small.wsum(mean_w, y, axis=0)
     dev = y - y_mean
     s = _small.weighted_outer(cov_w, dev, dev) + measurement_cov(params, dtype)
@@ -409,7 +389,8 @@ def _particle_step(
     # Visible: at least `margin` inside the range and inside the field of view's edge
     # (forward >= r cos(half_fov) + margin; no arctangent needed).
     local_means = table.means[jnp.minimum(local, capacity - 1)]
-    sensor_xy, cos_h, sin_h = _sensor_frame(sampled, params)
+    sensor_xy = sensor_position(sampled, offset)
+    cos_h, sin_h = jnp.cos(sampled[2]), jnp.sin(sampled[2])
     rel = local_means - sensor_xy
     dist = jnp.sqrt(rel[:, 0] ** 2 + rel[:, 1] ** 2)
     forward = cos_h * rel[:, 0] + sin_h * rel[:, 1]

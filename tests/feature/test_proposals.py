@@ -147,6 +147,7 @@ def test_small_linear_algebra():
     np.testing.assert_allclose(l, np.linalg.cholesky(spd), atol=1e-12)
     np.testing.assert_allclose(np.asarray(_small.tril_inv3(jnp.asarray(l))), np.linalg.inv(l), atol=1e-10)
     np.testing.assert_allclose(np.asarray(_small.det3(jnp.asarray(a))), np.linalg.det(a), atol=1e-10)
+    np.testing.assert_allclose(np.asarray(_small.tril_logdet(jnp.asarray(l))), np.linalg.slogdet(spd)[1], atol=1e-10)
     inv, logdet = _small.inv2(jnp.asarray(spd[:, :2, :2]))
     np.testing.assert_allclose(np.asarray(inv), np.linalg.inv(spd[:, :2, :2]), atol=1e-10)
     np.testing.assert_allclose(np.asarray(logdet), np.linalg.slogdet(spd[:, :2, :2])[1], atol=1e-12)
