@@ -39,6 +39,7 @@ from jaxslam.core.resampling import normalize_log_weights, selective_resample_st
 from jaxslam.driver import step_keys
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.params import Config, Params
+from jaxslam.feature.particle import particle_step
 
 # The noise levels calibrated by default (log-space parameters).
 NOISE_NAMES = ("speed_std", "steering_std", "range_std", "bearing_std")
@@ -65,7 +66,7 @@ def differentiable_step(
     particle_keys = jax.random.split(k_sample, config.num_particles)
 
     def active_step(state):
-        out = jax.vmap(feature_filter._particle_step, (0, 0, 0, 0, None, None, None, None))(
+        out = jax.vmap(particle_step, (0, 0, 0, 0, None, None, None, None))(
             particle_keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation, params, config
         )
         any_finite = jnp.any(out.finite)

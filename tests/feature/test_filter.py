@@ -15,6 +15,7 @@ from filterpy.kalman import MerweScaledSigmaPoints
 from jaxslam.core.sigma import unscented_transform
 from jaxslam.datasets.landmark_sim import simulate
 from jaxslam.feature import filter as F
+from jaxslam.feature import particle as P
 from jaxslam.feature.experiment import params_for, run_landmark_slam
 from jaxslam.feature.params import Config
 from jaxslam.metrics.nees import pose_errors, pose_nees
@@ -179,7 +180,7 @@ def test_prediction_matches_generic_unscented_transform(dtype):
     pose = np.array([1.0, -2.0, 0.7])
     a = np.array([[0.3, 0.0, 0.0], [0.1, 0.2, 0.0], [0.01, -0.02, 0.05]])
     control = np.array([3.0, 0.2, 0.1])
-    mean, sqrt = jax.jit(F.predict_pose)(jnp.asarray(pose, dtype), jnp.asarray(a, dtype),
+    mean, sqrt = jax.jit(P.predict_pose)(jnp.asarray(pose, dtype), jnp.asarray(a, dtype),
                                           jnp.asarray(control[None], dtype), F.cast_params(params64, dtype))
     assert mean.dtype == dtype and sqrt.dtype == dtype
     aug_mean = jnp.concatenate([jnp.asarray(pose), jnp.zeros(2)])
@@ -220,7 +221,7 @@ def test_landmark_update_and_initialisation_match_reference(dtype, offset):
     mean = np.array([-15.0, 6.0])
     cov = np.array([[0.3, 0.05], [0.05, 0.1]])
     z = observe_np(pose, mean + np.array([0.4, -0.3]), offset) + np.array([0.1, 0.02])
-    new_mean, new_cov, ok, _ = jax.jit(F.update_landmark)(
+    new_mean, new_cov, ok, _ = jax.jit(P.update_landmark)(
         jnp.asarray(pose, dtype), jnp.asarray(mean, dtype), jnp.asarray(cov, dtype), jnp.asarray(z, dtype), params
     )
     assert bool(ok) and new_mean.dtype == dtype
@@ -230,7 +231,7 @@ def test_landmark_update_and_initialisation_match_reference(dtype, offset):
     np.testing.assert_allclose(np.asarray(new_cov, np.float64), ref_cov, atol=LANDMARK_TOL[dtype]["cov"])
 
     # initialisation: the unscented transform of the inverse model over z ~ N(z, R)
-    init_mean, init_cov, ok = jax.jit(F.initialise_landmark)(jnp.asarray(pose, dtype), jnp.asarray(z, dtype), params)
+    init_mean, init_cov, ok = jax.jit(P.initialise_landmark)(jnp.asarray(pose, dtype), jnp.asarray(z, dtype), params)
     assert bool(ok)
     points = MerweScaledSigmaPoints(2, alpha=1.0, beta=2.0, kappa=1.0)
     sigma = points.sigma_points(z, np.diag([float(params.range_std) ** 2, float(params.bearing_std) ** 2]))
@@ -248,8 +249,8 @@ def test_padded_control_rows_do_not_change_the_prediction():
     pose, sqrt = jnp.asarray([0.0, 1.0, -0.4]), 0.01 * jnp.eye(3)
     rows = jnp.asarray([[2.0, 0.1, 0.025], [2.1, 0.12, 0.025]])
     padded = jnp.concatenate([rows, jnp.zeros((3, 3))])
-    a = F.predict_pose(pose, sqrt, rows, params)
-    b = F.predict_pose(pose, sqrt, padded, params)
+    a = P.predict_pose(pose, sqrt, rows, params)
+    b = P.predict_pose(pose, sqrt, padded, params)
     for x, y in zip(a, b):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 

@@ -18,6 +18,7 @@ from jaxslam.datasets.landmark_sim import simulate
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.driver import step_keys
 from jaxslam.feature import filter as F
+from jaxslam.feature import particle as P
 from jaxslam.feature.experiment import params_for, run_landmark_slam
 from jaxslam.feature.params import Config
 
@@ -106,7 +107,7 @@ def test_every_likelihood_underflows_without_nan(sim):
     assert bool(info.updated) and int(info.num_nonfinite_particles) == 0
     # the increments themselves: exp() of every one is 0 in this dtype
     keys = jax.random.split(jax.random.split(jax.random.PRNGKey(5))[0], CONFIG.num_particles)
-    particle_steps = jax.jit(jax.vmap(F._particle_step, (0, 0, 0, 0, None, None, None, None)), static_argnums=7)
+    particle_steps = jax.jit(jax.vmap(P.particle_step, (0, 0, 0, 0, None, None, None, None)), static_argnums=7)
     out = particle_steps(
         keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation,
         F.cast_params(absurd, dtype), CONFIG,
@@ -241,19 +242,19 @@ def test_landmark_update_stays_positive_definite(case, dtype):
     rel = np.asarray(mean, np.float64)
     predicted = np.array([np.hypot(*rel), np.arctan2(rel[1], rel[0])])
     z = jnp.asarray(predicted + np.asarray(offset), dtype)
-    new_mean, new_cov, ok, repaired = jax.jit(F.update_landmark)(pose, mean, cov, z, params)
+    new_mean, new_cov, ok, repaired = jax.jit(P.update_landmark)(pose, mean, cov, z, params)
     assert np.all(np.isfinite(np.asarray(new_mean)))
     _assert_pd(new_cov)
     if not bool(ok):
         np.testing.assert_array_equal(new_cov, cov)
     if case == "tiny-R":  # P - K S K^T cancels to (nearly) zero: the floor is what keeps it PD
         assert bool(ok) and bool(repaired)
-    m, c, ok_new = jax.jit(F.initialise_landmark)(pose, z, params)
+    m, c, ok_new = jax.jit(P.initialise_landmark)(pose, z, params)
     assert bool(ok_new) and np.all(np.isfinite(np.asarray(m)))
     _assert_pd(c)
 
 
-_update_jit = jax.jit(F.update_landmark)
+_update_jit = jax.jit(P.update_landmark)
 
 
 @settings(max_examples=200)
