@@ -14,6 +14,7 @@ from filterpy.kalman import MerweScaledSigmaPoints
 
 from jaxslam.core.sigma import unscented_transform
 from jaxslam.datasets.landmark_sim import simulate
+from jaxslam.driver import best_particle
 from jaxslam.feature import filter as F
 from jaxslam.feature import particle as P
 from jaxslam.feature.experiment import params_for, run_landmark_slam
@@ -105,7 +106,7 @@ def test_maps_match_the_world(sim_runs):
     aligned maxima 0.87-2.08 m.
     """
     for seq, info, state in sim_runs["erb"]:
-        best = int(info.best_particle[-1])
+        best = int(best_particle(state))  # of the final state (Info's is before the last resampling)
         active = np.asarray(state.landmarks.active[best])
         means = np.asarray(state.landmarks.means[best], np.float64)[active]
         seen = seq.landmarks[np.unique(seq.associations[seq.associations >= 0])]
