@@ -7,7 +7,9 @@ Every filter module (:mod:`jaxslam.feature.filter`, :mod:`jaxslam.grid.gmapping`
   initial state is deterministic: ``key`` is accepted for the common signature and
   not used (an ``init`` that ever draws must use ``fold_in(key, ...)``, not the
   step keys below).
-* ``step(key, state, control, observation, params, config) -> (State, Info)``;
+* ``step(key, state, control, observation, params, config) -> (State, Info)``, a
+  pure function traced inside ``run`` and the chunk runners (the landmark ``step`` is
+  also jitted on its own, for direct calls; the grid ``step`` is not);
   ``Info`` always has ``ess`` (before resampling), ``resampled`` and ``ancestors``
   ``(N,)`` (the identity when it did not resample).
 * ``run(key, state, controls, observations, params, config) -> (State, Info)``:
