@@ -110,7 +110,7 @@ def _evaluate(seq, params, args, half) -> dict:
     rows = []
     second = seq.times >= seq.times[half]
     for i, seed in enumerate(seeds):
-        err = gps_error(seq.times, ens.trajectories[i], seq.gps_times, seq.gps_xy)
+        err = gps_error(seq.times, ens.trajectory[i], seq.gps_times, seq.gps_xy)
         later = err["used"] & (seq.gps_times >= seq.times[half])
         rows.append({"seed": seed, "heldout_log_likelihood_per_scan": float(incs[i][second].mean()),
                      "heldout_gps_mean_m": float(np.nanmean(err["errors_m"][later])),

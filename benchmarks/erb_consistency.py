@@ -42,6 +42,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from jaxslam.datasets import landmark_sim  # noqa: E402
+from jaxslam.driver import scan_steps  # noqa: E402
 from jaxslam.feature import filter as feature_filter  # noqa: E402
 from jaxslam.feature.experiment import ALGORITHMS, params_for  # noqa: E402
 from jaxslam.feature.params import Config  # noqa: E402
@@ -68,16 +69,9 @@ def _ensemble(keys, controls, observations, obs_mask, true_landmarks, params, co
                                                             evidence=evidence, count=counts))
             del cap
 
-        def body(s, xs):
-            k, u, z, m = xs
-            s, info, ancestors = feature_filter.step_with_ancestors(
-                k, s, u, feature_filter.Observation(z, m), params, config
-            )
-            return s, (info, ancestors)
-
-        keys_t = feature_filter.step_keys(key, controls.shape[0])
-        _, (infos, ancestors) = jax.lax.scan(body, state, (keys_t, controls, observations, obs_mask))
-        return infos, ancestors
+        observation = feature_filter.Observation(observations, obs_mask)
+        _, infos = scan_steps(feature_filter.step, key, state, controls, observation, params, config)
+        return infos, infos.ancestors
 
     return jax.vmap(one)(keys, controls, observations, obs_mask, true_landmarks)
 
@@ -87,7 +81,7 @@ def genealogy(ancestors: np.ndarray, best: np.ndarray, lag: int = 50) -> dict[st
 
     ``survivors_after_lag``: of the particles at step ``t``, how many have descendants
     at ``t + lag`` (mean over ``t``). ``best_switches``: steps at which the
-    highest-weight particle does not descend from the previous step's.
+    best particle does not descend from the previous step's.
     """
     t_steps, n = ancestors.shape
     switches = 0

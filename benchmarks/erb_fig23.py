@@ -3,7 +3,7 @@
 Kim, Kim & Chung (2011) show one run in which the RB filter with 3 particles diverges
 (around 886-900 s) while ERB keeps its particles diverse. Here both filters run the
 same seeds (identical random streams for a seed), each algorithm as one ensemble
-(:func:`jaxslam.feature.experiment.run_landmark_seeds`). Per seed: GPS error after
+(:func:`jaxslam.feature.ensemble.run_landmark_ensemble`). Per seed: GPS error after
 rigid alignment, divergence (GPS RMS error above ``--diverged-m``), resamplings and
 the variance of the normalised weights. Reported: the divergence rate of each filter
 with its 95% Wilson interval, the paired outcome (seeds where only RB or only ERB
@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import RESULTS, print_table, write_json  # noqa: E402
 
 from jaxslam.datasets import victoria_park  # noqa: E402
-from jaxslam.feature.experiment import run_landmark_seeds  # noqa: E402
+from jaxslam.feature.ensemble import run_landmark_ensemble  # noqa: E402
 from jaxslam.metrics.gps import gps_error  # noqa: E402
 from jaxslam.metrics.stats import mean_ci, rate_ci  # noqa: E402
 
@@ -49,7 +49,7 @@ def main() -> None:
     seeds = list(range(args.seeds))
     per_alg, totals, curves = {}, {}, {}
     for algorithm in ("rb-upf", "erb-upf"):
-        res = run_landmark_seeds(seq, algorithm, particles=args.particles, seeds=seeds)
+        res = run_landmark_ensemble(seq, algorithm, particles=args.particles, seeds=seeds)
         errs = [gps_error(seq.times, res.trajectory[i], seq.gps_times, seq.gps_xy) for i in range(len(seeds))]
         wv = res.info["weight_variance"]  # (S, T)
         quarter = wv.shape[1] // 4

@@ -2,7 +2,7 @@
 as seed statistics.
 
 For each particle count and algorithm, one ensemble of ``--seeds`` seeds run as one
-program (:func:`jaxslam.feature.experiment.run_landmark_seeds`): per seed the GPS
+program (:func:`jaxslam.feature.ensemble.run_landmark_ensemble`): per seed the GPS
 error after rigid alignment (mean, RMS, max), the landmarks of the best particle and
 the resamplings; per point the mean, standard deviation and 95% confidence interval
 (Student t) over seeds. Wall time is that of the whole ensemble after compilation
@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import RESULTS, print_table, write_json  # noqa: E402
 
 from jaxslam.datasets import victoria_park  # noqa: E402
-from jaxslam.feature.experiment import run_landmark_seeds  # noqa: E402
+from jaxslam.feature.ensemble import run_landmark_ensemble  # noqa: E402
 from jaxslam.metrics.gps import gps_error  # noqa: E402
 from jaxslam.metrics.stats import mean_ci  # noqa: E402
 
@@ -112,7 +112,7 @@ def main() -> None:
     rows = [r for r in rows if (r["algorithm"], r["particles"]) not in redo]
     for n in args.particles:
         for algorithm in args.algorithms:
-            res = run_landmark_seeds(seq, algorithm, particles=n, seeds=seeds)
+            res = run_landmark_ensemble(seq, algorithm, particles=n, seeds=seeds)
             rows.append(summarise(seq, res))
             r = rows[-1]
             print(f"{algorithm} N={n}, {len(seeds)} seeds: GPS mean {r['gps_mean_m']:.2f} m "

@@ -36,8 +36,10 @@ from jax import Array
 from jax.scipy.special import logsumexp
 
 from jaxslam.core.resampling import normalize_log_weights, selective_resample_stop_gradient
+from jaxslam.driver import step_keys
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.params import Config, Params
+from jaxslam.feature.particle import particle_step
 
 # The noise levels calibrated by default (log-space parameters).
 NOISE_NAMES = ("speed_std", "steering_std", "range_std", "bearing_std")
@@ -64,7 +66,7 @@ def differentiable_step(
     particle_keys = jax.random.split(k_sample, config.num_particles)
 
     def active_step(state):
-        out = jax.vmap(feature_filter._particle_step, (0, 0, 0, 0, None, None, None, None))(
+        out = jax.vmap(particle_step, (0, 0, 0, 0, None, None, None, None))(
             particle_keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation, params, config
         )
         any_finite = jnp.any(out.finite)
@@ -77,7 +79,10 @@ def differentiable_step(
         ancestors, resampled, new_log_w = selective_resample_stop_gradient(
             k_resample, log_w, params.resample_threshold, config.resampler
         )
-        moved = feature_filter.State(out.pose, out.pose_sqrt, new_log_w, out.landmarks)
+        cumulative = jnp.where(
+            any_finite, state.cumulative_log_likelihood + out.log_weight_increment, state.cumulative_log_likelihood
+        )
+        moved = feature_filter.State(out.pose, out.pose_sqrt, new_log_w, cumulative, out.landmarks)
         # Gather everything but the weights: the carried weights are already per slot.
         gathered = jax.lax.cond(
             resampled,
@@ -105,7 +110,7 @@ def log_likelihoods(
     in the backward pass (``jax.checkpoint``), so memory does not hold every step's
     intermediates (the scan still stores each step's state)."""
     state = feature_filter.init(key, params, config, initial_pose)
-    keys = feature_filter.step_keys(key, np.shape(controls)[0])
+    keys = step_keys(key, np.shape(controls)[0])
 
     def body(s, xs):
         k, u, z, m = xs

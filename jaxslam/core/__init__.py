@@ -1,8 +1,7 @@
-"""Pure math on batched arrays: sigma points, square-root factors, resampling, SE(2),
-Gaussian log-densities. No SLAM vocabulary here."""
+"""Pure math on batched arrays: sigma points, square-root factors, resampling, SE(2).
+No SLAM vocabulary here."""
 
-from jaxslam.core import gaussian, resampling, se2, sigma, sqrt
-from jaxslam.core.gaussian import chol_logdet, log_pdf, mahalanobis_sq, safe_cholesky
+from jaxslam.core import resampling, se2, sigma, sqrt
 from jaxslam.core.resampling import (
     effective_sample_size,
     get_resampler,
@@ -24,8 +23,7 @@ from jaxslam.core.sqrt import (
 )
 
 __all__ = [
-    "gaussian", "resampling", "se2", "sigma", "sqrt",
-    "chol_logdet", "log_pdf", "mahalanobis_sq", "safe_cholesky",
+    "resampling", "se2", "sigma", "sqrt",
     "effective_sample_size", "get_resampler", "multinomial", "normalize_log_weights",
     "residual", "selective_resample", "stratified", "systematic",
     "UTParams", "UTResult", "sigma_points", "unscented_transform", "ut_moments", "ut_weights",

@@ -3,11 +3,14 @@ proposal (Kim, Kim & Chung, ICRA 2011), per-particle landmark tables and data
 association.
 
 * :mod:`~jaxslam.feature.filter`: ``init`` / ``step`` / ``run``, ``State``, ``Info``.
+* :mod:`~jaxslam.feature.particle`: one particle's part of a step and the landmark
+  update / initialisation kernels.
 * :mod:`~jaxslam.feature.params`: ``Params`` (traced) and ``Config`` (static).
 * :mod:`~jaxslam.feature.proposals`: ``erb_proposal`` and ``rb_proposal`` (one signature).
 * :mod:`~jaxslam.feature.association`: maximum-likelihood association with gates.
 * :mod:`~jaxslam.feature.landmarks`: fixed-capacity landmark tables.
 * :mod:`~jaxslam.feature.experiment`: ``run_landmark_slam`` on a whole sequence.
+* :mod:`~jaxslam.feature.ensemble`: ``run_landmark_ensemble``, one run per seed in one program.
 """
 
 from jaxslam.feature.filter import Info, Observation, State, init, run, step

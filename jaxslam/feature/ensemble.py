@@ -1,11 +1,11 @@
 """The same landmark filter for many seeds as one compiled program.
 
-:func:`run_landmark_ensemble` runs RB-UPF or ERB-UPF on one sequence for every seed
-of ``seeds`` at once: :func:`jaxslam.feature.filter.init` and a ``lax.scan`` of
-:func:`jaxslam.feature.filter.step` are ``vmap``-ed over the seeds' keys. Seed ``s``
-uses exactly the keys of the single-seed run (``PRNGKey(s)`` and
-:func:`jaxslam.feature.filter.step_keys`), so member ``i`` is the run of
-``seeds[i]``. The compiled program is cached per static configuration
+:func:`run_landmark_ensemble` runs RB-UPF or ERB-UPF once per seed of ``seeds``:
+:func:`jaxslam.feature.filter.init` and :func:`jaxslam.driver.scan_steps` of
+:func:`jaxslam.feature.filter.step` are ``vmap``-ed over the seeds' keys. Seed ``s`` uses exactly the keys of
+the single-seed run (``PRNGKey(s)`` and :func:`jaxslam.driver.step_keys`), so member
+``i`` is :func:`jaxslam.feature.experiment.run_landmark_slam` of ``seeds[i]``. The
+compiled program is cached per static configuration
 (:class:`~jaxslam.feature.params.Config`, dtype, shapes): a sweep over ``Params`` or
 seeds of the same count never recompiles, because ``Params`` are traced.
 """
@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.driver import best_particle, scan_steps
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.experiment import ALGORITHMS, params_for
 from jaxslam.feature.params import Config, Params
@@ -31,8 +32,11 @@ class LandmarkEnsembleResult:
 
     Attributes:
         algorithm, particles, seeds, steps: what was run.
-        trajectories: ``(S, T, 3)`` weighted mean pose after each step.
+        trajectory: ``(S, T, 3)`` weighted mean pose after each step.
+        pose_covs: ``(S, T, 3, 3)`` weighted covariance of the particle poses.
         info: every :class:`~jaxslam.feature.filter.Info` field, ``(S, T, ...)``.
+        landmarks: ``(S,)`` landmarks of each seed's best particle at the end
+            (:func:`jaxslam.driver.best_particle`).
         state: the final :class:`~jaxslam.feature.filter.State` of every seed.
         wall_s: run time after compilation [s] (all seeds together).
         compile_s: compilation time [s] (0 when the program was cached).
@@ -44,24 +48,26 @@ class LandmarkEnsembleResult:
     particles: int
     seeds: tuple[int, ...]
     steps: int
-    trajectories: np.ndarray
+    trajectory: np.ndarray
+    pose_covs: np.ndarray
     info: dict[str, np.ndarray]
+    landmarks: np.ndarray
     state: Any
     wall_s: float
     compile_s: float
     params: Params
     config: Config
 
+    @property
+    def resamplings(self) -> np.ndarray:
+        """``(S,)`` resampling steps of each seed."""
+        return self.info["resampled"].sum(axis=1)
+
 
 def _one_seed(key, params, controls, observations, obs_mask, initial_pose, config):
     state = feature_filter.init(key, params, config, initial_pose)
-    keys = feature_filter.step_keys(key, controls.shape[0])
-
-    def body(s, xs):
-        k, u, z, m = xs
-        return feature_filter.step(k, s, u, feature_filter.Observation(z, m), params, config)
-
-    return jax.lax.scan(body, state, (keys, controls, observations, obs_mask))
+    observation = feature_filter.Observation(observations, obs_mask)
+    return scan_steps(feature_filter.step, key, state, controls, observation, params, config)
 
 
 _PROGRAMS: dict[Config, Any] = {}
@@ -113,10 +119,10 @@ def run_landmark_ensemble(
     """
     if algorithm not in ALGORITHMS:
         raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}")
+    keys = seed_keys(seeds)
     if not isinstance(params, Params):
         params = params_for(sequence, **(params or {}))
     cfg = Config(num_particles=particles, proposal=ALGORITHMS[algorithm], **(config or {}))
-    keys = seed_keys(seeds)
     args = (
         keys,
         feature_filter.cast_params(params, dtype),
@@ -136,14 +142,18 @@ def run_landmark_ensemble(
     state, infos = jax.block_until_ready(compiled(*args))
     wall_s = time.perf_counter() - start
     info = {name: np.asarray(value) for name, value in infos._asdict().items()}
+    state = jax.tree_util.tree_map(np.asarray, state)
+    best = [int(best_particle(jax.tree_util.tree_map(lambda x: x[i], state))) for i in range(len(keys))]
     return LandmarkEnsembleResult(
         algorithm=algorithm,
         particles=particles,
         seeds=tuple(int(s) for s in seeds),
         steps=int(np.shape(sequence.controls)[0]),
-        trajectories=info["pose_estimate"],
+        trajectory=info["pose_estimate"],
+        pose_covs=info["pose_cov"],
         info=info,
-        state=jax.tree_util.tree_map(np.asarray, state),
+        landmarks=np.array([state.landmarks.count[i, b] for i, b in enumerate(best)]),
+        state=state,
         wall_s=wall_s,
         compile_s=compile_s,
         params=jax.tree_util.tree_map(lambda x: np.asarray(x).tolist(), params),

@@ -4,25 +4,26 @@
 ``observations (T, Z, 2)`` and ``obs_mask (T, Z)`` (Victoria Park or the simulator),
 builds :class:`~jaxslam.feature.params.Params` for it (the paper's noise, the car
 geometry from the sequence's ``meta``), runs the filter in jitted chunks with a
-progress bar (:func:`jaxslam.progress.run_scan_chunked`; compilation timed apart) and
-returns the trajectory, the map of the highest-weight particle and the per-step
-``Info`` as NumPy arrays.
+progress bar (:func:`jaxslam.progress.run_scan_chunked` with the chunk runner cached per
+static config, :func:`jaxslam.driver.chunk_runner`; compilation timed apart) and
+returns the trajectory, the map of the best particle (:func:`jaxslam.driver.best_particle`)
+and the per-step ``Info`` as NumPy arrays.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.driver import best_particle, chunk_runner, step_keys
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.params import Config, Params
 from jaxslam.models.vehicle import CarGeometry
-from jaxslam.progress import make_chunk_runner, run_scan_chunked
+from jaxslam.progress import run_scan_chunked
 
 ALGORITHMS = {"erb-upf": "erb", "rb-upf": "rb", "erb": "erb", "rb": "rb"}
 
@@ -37,7 +38,8 @@ class LandmarkSlamResult:
         trajectory: (T, 3) weighted mean pose after each step (for Victoria Park the
             laser's position and the car's heading).
         pose_covs: (T, 3, 3) weighted covariance of the particle poses.
-        landmark_means: (M, 2) active landmarks of the highest-weight particle.
+        landmark_means: (M, 2) active landmarks of the best particle
+            (:func:`jaxslam.driver.best_particle`).
         landmark_covs: (M, 2, 2) their covariances.
         info: every :class:`~jaxslam.feature.filter.Info` field, stacked over T.
         wall_s: run time after compilation [s].
@@ -98,25 +100,6 @@ def params_for(sequence: Any, **overrides: Any) -> Params:
     return Params(**values)
 
 
-_RUNNERS: dict[Config, Any] = {}
-
-
-def _runner(config: Config):
-    """One chunk runner per configuration, so a sweep over params compiles once."""
-    if config not in _RUNNERS:
-
-        def step_fn(carry, xs):
-            state, params = carry
-            key, control, values, mask = xs
-            state, info = feature_filter.step(
-                key, state, control, feature_filter.Observation(values, mask), params, config
-            )
-            return (state, params), info
-
-        _RUNNERS[config] = make_chunk_runner(step_fn)
-    return _RUNNERS[config]
-
-
 def run_landmark_slam(
     sequence: Any,
     algorithm: str = "erb-upf",
@@ -157,19 +140,18 @@ def run_landmark_slam(
     state = feature_filter.init(key, params, cfg, jnp.zeros(3, dtype))
     params_arr = feature_filter.cast_params(params, dtype)
     xs = (
-        feature_filter.step_keys(key, steps),
+        step_keys(key, steps),
         jnp.asarray(sequence.controls, dtype),
-        jnp.asarray(sequence.observations, dtype),
-        jnp.asarray(sequence.obs_mask, bool),
+        feature_filter.Observation(jnp.asarray(sequence.observations, dtype), jnp.asarray(sequence.obs_mask, bool)),
     )
     extra = {} if checkpoint is None else {"checkpoint": checkpoint}
     (state, _), infos, timing = run_scan_chunked(
-        None, (state, params_arr), xs, chunk=chunk, desc=algorithm, progress=progress, runner=_runner(cfg),
-        callback=callback, **extra,
+        None, (state, params_arr), xs, chunk=chunk, desc=algorithm, progress=progress,
+        runner=chunk_runner(feature_filter.step, cfg), callback=callback, **extra,
     )
     state = jax.tree_util.tree_map(np.asarray, state)
     info = {name: np.asarray(value) for name, value in infos._asdict().items()}
-    best = int(np.argmax(np.asarray(state.log_weights)))
+    best = int(best_particle(state))
     table = jax.tree_util.tree_map(lambda x: np.asarray(x[best]), state.landmarks)
     return LandmarkSlamResult(
         algorithm=algorithm,
@@ -188,124 +170,4 @@ def run_landmark_slam(
         params=jax.tree_util.tree_map(lambda x: np.asarray(x).tolist(), params),
         config=cfg,
         state=state,
-    )
-
-
-@dataclasses.dataclass
-class LandmarkSeedsResult:
-    """Outcome of :func:`run_landmark_seeds`: one filter run per seed, in one program.
-
-    Attributes:
-        algorithm, particles, seeds, steps: what was run.
-        trajectory: ``(S, T, 3)`` weighted mean pose per seed and step.
-        pose_covs: ``(S, T, 3, 3)`` weighted covariance of the particle poses.
-        info: every :class:`~jaxslam.feature.filter.Info` field, ``(S, T, ...)``.
-        landmarks: ``(S,)`` landmarks of each seed's highest-weight particle at the end.
-        wall_s: run time of the whole ensemble after compilation [s].
-        compile_s: compilation time [s].
-        config: the static configuration.
-    """
-
-    algorithm: str
-    particles: int
-    seeds: list[int]
-    steps: int
-    trajectory: np.ndarray
-    pose_covs: np.ndarray
-    info: dict[str, np.ndarray]
-    landmarks: np.ndarray
-    wall_s: float
-    compile_s: float
-    config: Config
-
-    @property
-    def resamplings(self) -> np.ndarray:
-        return self.info["resampled"].sum(axis=1)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_seeds(keys, controls, observations, obs_mask, params, config, initial_pose):
-    def one(key, controls, observations, obs_mask):
-        state = feature_filter.init(key, params, config, initial_pose)
-        step_keys = feature_filter.step_keys(key, controls.shape[0])
-
-        def body(s, xs):
-            k, u, z, m = xs
-            return feature_filter.step(k, s, u, feature_filter.Observation(z, m), params, config)
-
-        state, infos = jax.lax.scan(body, state, (step_keys, controls, observations, obs_mask))
-        best = jnp.argmax(state.log_weights)
-        return infos, state.landmarks.count[best]
-
-    per_seed = controls.ndim == 4
-    axes = (0, 0, 0, 0) if per_seed else (0, None, None, None)
-    return jax.vmap(one, axes)(keys, controls, observations, obs_mask)
-
-
-def run_landmark_seeds(
-    sequence: Any,
-    algorithm: str = "erb-upf",
-    particles: int = 100,
-    seeds: Any = range(10),
-    params: Params | dict[str, Any] | None = None,
-    config: dict[str, Any] | None = None,
-    dtype: Any = jnp.float32,
-    sequences: list[Any] | None = None,
-) -> LandmarkSeedsResult:
-    """Run RB-UPF or ERB-UPF once per seed as one compiled program (``vmap`` over the
-    seeds; each seed's key is ``PRNGKey(seed)`` with the per-step keys of
-    :func:`run_landmark_slam`, so the random streams are those of single runs).
-
-    Args:
-        sequence: the sequence every seed runs on (its parameters come from it).
-        algorithm, particles, params, config, dtype: as for :func:`run_landmark_slam`.
-        seeds: the seeds.
-        sequences: optionally one sequence per seed (same shapes, e.g. simulated worlds
-            drawn from each seed with a fixed ``max_observations``); ``sequence`` then
-            only supplies the parameters.
-    """
-    import time
-
-    if algorithm not in ALGORITHMS:
-        raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}")
-    seeds = [int(s) for s in seeds]
-    if sequences is not None and len(sequences) != len(seeds):
-        raise ValueError(f"got {len(sequences)} sequences for {len(seeds)} seeds")
-    if not isinstance(params, Params):
-        params = params_for(sequence, **(params or {}))
-    cfg = Config(num_particles=particles, proposal=ALGORITHMS[algorithm], **(config or {}))
-    keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
-    if sequences is None:
-        arrays = (sequence.controls, sequence.observations, sequence.obs_mask)
-    else:
-        shapes = {(np.shape(q.controls), np.shape(q.observations)) for q in sequences}
-        if len(shapes) != 1:
-            raise ValueError(f"the per-seed sequences must share their shapes, got {sorted(shapes)}")
-        arrays = tuple(np.stack([getattr(q, name) for q in sequences]) for name in ("controls", "observations", "obs_mask"))
-    args = (
-        keys,
-        jnp.asarray(arrays[0], dtype),
-        jnp.asarray(arrays[1], dtype),
-        jnp.asarray(arrays[2], bool),
-        feature_filter.cast_params(params, dtype),
-    )
-    t0 = time.perf_counter()
-    compiled = _run_seeds.lower(*args, config=cfg, initial_pose=jnp.zeros(3, dtype)).compile()
-    compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    infos, landmarks = jax.block_until_ready(compiled(*args, initial_pose=jnp.zeros(3, dtype)))
-    wall_s = time.perf_counter() - t0
-    info = {name: np.asarray(value) for name, value in infos._asdict().items()}
-    return LandmarkSeedsResult(
-        algorithm=algorithm,
-        particles=particles,
-        seeds=seeds,
-        steps=int(np.shape(arrays[0])[-3]),
-        trajectory=info["pose_estimate"],
-        pose_covs=info["pose_cov"],
-        info=info,
-        landmarks=np.asarray(landmarks),
-        wall_s=wall_s,
-        compile_s=compile_s,
-        config=cfg,
     )

@@ -5,7 +5,8 @@ One filter, ``init``/``step``/``run``; the proposal is ``Config.proposal``
 the random streams: with the same key both filters draw the same normals for
 sampling and the same uniforms for resampling.
 
-One step (one laser scan), for every particle (``vmap``):
+One step (one laser scan), for every particle (``vmap`` of
+:func:`jaxslam.feature.particle.particle_step`, steps 1-5):
 
 1. **Prediction** (Sec. II-A.1): for each control row ``[v, alpha, dt]`` of the scan
    (padding rows with ``dt = 0`` are skipped), an unscented transform over
@@ -25,8 +26,15 @@ One step (one laser scan), for every particle (``vmap``):
    (:mod:`jaxslam.feature.landmarks`).
 6. **Selective resampling** when ESS < ``resample_threshold`` N.
 
+``init``/``step``/``run`` follow the protocol of every filter (:mod:`jaxslam.driver`):
+step keys ``jaxslam.driver.step_keys(key, T)``, ``Info`` with ``ess``, ``resampled`` and
+``ancestors``. **Best particle**: the particle with the largest accumulated
+log-likelihood (``State.cumulative_log_likelihood``, the sum of its eq. 11 increments
+over its history, carried through resampling), as in the grid filters; not the
+highest current weight, which after a resampling is the same for every particle.
+
 ``Info`` per step carries the weighted pose estimate and covariance, ESS, whether it
-resampled, the weight variance, and the paper's Fig. 1 quantity
+resampled and the ancestors, the weight variance, and the paper's Fig. 1 quantity
 :math:`\log \sum_m w^{[m]} \det P^{[m]}` for both the ERB and the RB proposal computed
 on the same particles (NaN when no particle was updated).
 
@@ -60,32 +68,15 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax import Array
 from jax.scipy.special import logsumexp
 
 from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
 from jaxslam.core.se2 import pose_residual, wrap_angle
-from jaxslam.core.sigma import sigma_points, ut_weights
-from jaxslam.feature import _small
-from jaxslam.feature.association import associate
-from jaxslam.feature.landmarks import LandmarkTable, empty_table, free_slots, local_slots
+from jaxslam.driver import best_particle, scan_runner
+from jaxslam.feature.landmarks import LandmarkTable, empty_table
 from jaxslam.feature.params import Config, Params
-from jaxslam.feature.proposals import (
-    PROPOSAL_FUNCTIONS,
-    Proposal,
-    combine_batch,
-    innovation_terms,
-    measurement_cov,
-)
-from jaxslam.models.range_bearing import inverse_observe, sensor_position
-
-
-class Observation(NamedTuple):
-    """The observations of one scan: ``values (Z, 2)`` range/bearing, ``mask (Z,)``."""
-
-    values: Array
-    mask: Array
+from jaxslam.feature.particle import Observation, ParticleOut, particle_step
 
 
 class State(NamedTuple):
@@ -96,12 +87,16 @@ class State(NamedTuple):
         pose_sqrts: ``(N, 3, 3)`` lower factor of the pose covariance accumulated since
             the last sampling (the predicted covariance ``P-bar``).
         log_weights: ``(N,)`` normalised log-weights.
+        cumulative_log_likelihood: ``(N,)`` the sum of the particle's log weight
+            increments (eq. 11) over its whole history, carried through resampling;
+            its argmax is the best particle (:func:`jaxslam.driver.best_particle`).
         landmarks: :class:`LandmarkTable` with leading axis ``N``.
     """
 
     pose_means: Array
     pose_sqrts: Array
     log_weights: Array
+    cumulative_log_likelihood: Array
     landmarks: LandmarkTable
 
 
@@ -112,6 +107,7 @@ class Info(NamedTuple):
     pose_cov: Array  # (3, 3) weighted covariance of the particle poses
     ess: Array  # effective sample size before resampling
     resampled: Array  # bool
+    ancestors: Array  # (N,) int32 resampling ancestors (the identity when it did not resample)
     weight_variance: Array  # variance of the normalised weights before resampling
     log_det_proposal_erb: Array  # log sum_m w_m det P_ERB^[m] (updated particles), NaN if none
     log_det_proposal_rb: Array  # the same for the RB proposal on the same particles
@@ -120,9 +116,9 @@ class Info(NamedTuple):
     num_new: Array  # mean new landmarks per particle
     num_dropped: Array  # new landmarks dropped because a table was full (all particles)
     local_overflow: Array  # most local candidates left out in one particle
-    num_landmarks: Array  # landmarks of the highest-weight particle
+    num_landmarks: Array  # landmarks of the best particle
     num_landmarks_mean: Array  # weighted mean number of landmarks
-    best_particle: Array  # int32 index of the highest-weight particle
+    best_particle: Array  # int32 index of the best particle (largest cumulative_log_likelihood), before resampling
     num_invalid_controls: Array  # int32 control rows with a non-finite value (run as dt = 0)
     num_invalid_observations: Array  # int32 real observation rows that are non-finite or range <= 0 (masked out)
     num_nonfinite_particles: Array  # int32 particles whose new pose/weight was not finite (not propagated)
@@ -140,14 +136,16 @@ def cast_params(params: Params, dtype) -> Params:
     return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), params)
 
 
+@partial(jax.jit, static_argnames=("config",))
 def init(key: Array, params: Params, config: Config, initial_pose: Array | None = None) -> State:
     """All particles at ``initial_pose`` (default the origin), empty maps, equal weights.
 
     The dtype of the filter is that of ``initial_pose`` (default float: float32, or
-    float64 under ``jax_enable_x64``). ``key`` is unused (a deterministic start) but
-    kept first for the common signature.
+    float64 under ``jax_enable_x64``). Jitted (one compilation per config). ``key`` is
+    unused (a deterministic start, as the grid filters' ``init``) but kept first for
+    the common signature (:mod:`jaxslam.driver`).
     """
-    del key
+    del key  # the initial state is deterministic; the key keeps the protocol's signature
     pose = jnp.zeros(3) if initial_pose is None else jnp.asarray(initial_pose)
     if not jnp.issubdtype(pose.dtype, jnp.floating):
         pose = pose.astype(float)
@@ -158,304 +156,11 @@ def init(key: Array, params: Params, config: Config, initial_pose: Array | None 
         pose_means=jnp.broadcast_to(pose, (n, 3)),
         pose_sqrts=jnp.broadcast_to(reset * jnp.eye(3, dtype=dtype), (n, 3, 3)),
         log_weights=jnp.full((n,), -jnp.log(jnp.asarray(n, dtype))),
+        cumulative_log_likelihood=jnp.zeros((n,), dtype),
         landmarks=empty_table(config.capacity, dtype, (n,)),
     )
 
 
-# ----------------------------------------------------------------------- one particle
-
-
-# Augmented sigma points over [pose (3); speed noise; steering noise] in filterpy order
-# [centre, +cols (5), -cols (5)]: which of the 7 pose points (centre, +3, -3), which
-# speed-noise sign and which of the 3 steering values (centre, +, -) each one uses.
-_POSE_OF_POINT = np.array([0, 1, 2, 3, 0, 0, 4, 5, 6, 0, 0])
-_SPEED_SIGN = np.array([0, 0, 0, 0, 1, 0, 0, 0, 0, -1, 0], np.float32)
-_STEER_OF_POINT = np.array([0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 2])
-
-
-def predict_pose(pose: Array, pose_sqrt: Array, controls: Array, params: Params) -> tuple[Array, Array]:
-    """Unscented prediction over ``[pose; speed noise; steering noise]`` (n = 5) through
-    :func:`jaxslam.models.vehicle.car_motion` for each control row ``(K, 3)``; rows with
-    ``dt <= 0`` are skipped. Returns the predicted mean and lower Cholesky factor.
-
-    The 11 sigma points have only 7 distinct headings and 3 distinct steering angles,
-    so the trigonometry is evaluated on those alone (the same numbers as the generic
-    transform, at a third of the cost).
-    """
-    dtype = pose.dtype
-    mean_w, cov_w, lam = ut_weights(5, params.ut_predict, dtype)
-    gamma = jnp.sqrt(5 + lam)
-    geometry = params.geometry
-    speed_sign = jnp.asarray(_SPEED_SIGN, dtype)
-
-    def row(carry, control):
-        mean, sqrt = carry
-        off = gamma * sqrt.T
-        poses = jnp.concatenate([mean[None], mean + off, mean - off], 0)[_POSE_OF_POINT]  # (11, 3)
-        heading7 = jnp.concatenate([mean[2:3], mean[2] + off[:, 2], mean[2] - off[:, 2]])
-        cos7, sin7 = jnp.cos(heading7), jnp.sin(heading7)
-        cos, sin = cos7[_POSE_OF_POINT], sin7[_POSE_OF_POINT]
-        steer_noise = gamma * params.steering_std
-        tan3 = jnp.tan(control[1] + jnp.stack([jnp.zeros((), dtype), steer_noise, -steer_noise]))
-        tan = tan3[_STEER_OF_POINT]
-        speed = control[0] + speed_sign * (gamma * params.speed_std)
-        dt = control[2]
-        v_c = speed / (1.0 - tan * geometry.encoder_offset / geometry.wheelbase)
-        omega = v_c * tan / geometry.wheelbase
-        a, b = geometry.point_forward, geometry.point_left
-        moved = jnp.stack(
-            [
-                poses[:, 0] + dt * (v_c * cos - omega * (a * sin + b * cos)),
-                poses[:, 1] + dt * (v_c * sin + omega * (a * cos - b * sin)),
-                poses[:, 2] + dt * omega,
-            ],
-            -1,
-        )
-        heading = moved[0, 2] + _small.wsum(mean_w, wrap_angle(moved[:, 2] - moved[0, 2]))
-        new_mean = jnp.stack([_small.wsum(mean_w, moved[:, 0]), _small.wsum(mean_w, moved[:, 1]), wrap_angle(heading)])
-        dev = moved - new_mean
-        dev = jnp.stack([dev[:, 0], dev[:, 1], wrap_angle(dev[:, 2])], -1)
-        cov = _small.weighted_outer(cov_w, dev, dev)
-        new_sqrt = _small.chol3(cov)
-        ok = dt > 0
-        return (jnp.where(ok, new_mean, mean), jnp.where(ok, new_sqrt, sqrt)), None
-
-    (mean, sqrt), _ = jax.lax.scan(row, (pose, pose_sqrt), controls)
-    return mean, sqrt
-
-
-def _sensor_frame(pose: Array, params: Params) -> tuple[Array, Array, Array]:
-    """Sensor position ``(2,)`` and ``cos``, ``sin`` of the heading of ``pose``."""
-    offset = jnp.asarray(params.sensor_offset, pose.dtype)
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    xy = jnp.stack([pose[0] + c * offset[0] - s * offset[1], pose[1] + s * offset[0] + c * offset[1]])
-    return xy, c, s
-
-
-def _cov_floor(cov: Array, mean: Array) -> Array:
-    """The smallest eigenvalue a landmark covariance is allowed (dtype-aware).
-
-    ``max(16 eps tr(cov), (4 eps (|mean| + 1 m))^2)``: the first keeps a 2x2
-    Cholesky accurate, the second is the squared resolution of the landmark's
-    coordinates, below which a variance is rounding noise (float32: 0.5 um at the
-    origin, 0.1 mm at 200 m; float64: negligible).
-    """
-    eps = jnp.finfo(cov.dtype).eps
-    resolution = 4.0 * eps * (jnp.max(jnp.abs(mean)) + 1.0)
-    return jnp.maximum(16.0 * eps * jnp.trace(cov), resolution * resolution)
-
-
-def update_landmark(
-    pose: Array, mean: Array, cov: Array, observation: Array, params: Params
-) -> tuple[Array, Array, Array, Array]:
-    """Unscented Kalman update of one landmark given a (sampled) pose (n = 2 sigma
-    points over the landmark, additive R).
-
-    The updated covariance ``P - K S K^T`` is symmetrised and its smallest eigenvalue
-    lifted to :func:`_cov_floor` of the prior, so a downdate that would lose positive
-    definiteness in finite precision (a tiny ``R``, a near-singular prior) is repaired
-    rather than stored. An update that is not finite anyway is refused: the prior is
-    returned unchanged.
-
-    Returns:
-        ``(mean, cov, ok, repaired)``: ``ok`` False where the update was refused,
-        ``repaired`` True where the eigenvalue floor was applied.
-    """
-    dtype = mean.dtype
-    mean_w, cov_w, _ = ut_weights(2, params.ut_landmark, dtype)
-    points = sigma_points(mean, _small.chol2(cov), params.ut_landmark)
-    sensor = sensor_position(pose, jnp.asarray(params.sensor_offset, dtype))
-    d = points - sensor
-    dx, dy = d[:, 0], d[:, 1]
-    # bearings unwrapped about the centre point's (see proposals._assemble)
-    bearing0 = jnp.arctan2(dy[0], dx[0]) - pose[2]
-    bearing = bearing0 + jnp.arctan2(dx[0] * dy - dy[0] * dx, dx[0] * dx + dy[0] * dy)
-    y = jnp.stack([jnp.sqrt(dx * dx + dy * dy), bearing], -1)
-    y_mean = _small.wsum(mean_w, y, axis=0)
-    dev = y - y_mean
-    s = _small.weighted_outer(cov_w, dev, dev) + measurement_cov(params, dtype)
-    cross = _small.weighted_outer(cov_w, points - mean, dev)
-    s_inv, _ = _small.inv2(s)
-    gain = _small.matmul(cross, s_inv)
-    nu = jnp.stack([observation[0] - y_mean[0], wrap_angle(observation[1] - y_mean[1])])
-    gain_s_gain = _small.matmul(_small.matmul(gain, s), gain.T)
-    new_cov, repaired = _small.floor_eigenvalues2(cov - gain_s_gain, _cov_floor(cov, mean))
-    new_mean = mean + _small.matvec(gain, nu)
-    ok = jnp.all(jnp.isfinite(new_mean)) & jnp.all(jnp.isfinite(new_cov))
-    return jnp.where(ok, new_mean, mean), jnp.where(ok, new_cov, cov), ok, repaired & ok
-
-
-def initialise_landmark(pose: Array, observation: Array, params: Params) -> tuple[Array, Array, Array]:
-    """Landmark mean and covariance from one observation: the unscented transform of
-    the inverse observation model over ``z ~ N(observation, R)``.
-
-    The covariance is symmetrised with its smallest eigenvalue lifted to
-    :func:`_cov_floor` of itself. Returns ``(mean, cov, ok)``, ``ok`` False where
-    the result is not finite (the caller does not store it).
-    """
-    dtype = pose.dtype
-    mean_w, cov_w, _ = ut_weights(2, params.ut_landmark, dtype)
-    r_sqrt = jnp.diag(jnp.stack([params.range_std, params.bearing_std]))
-    points = sigma_points(observation, r_sqrt, params.ut_landmark)
-    offset = jnp.asarray(params.sensor_offset, dtype)
-    m = jax.vmap(inverse_observe, (None, 0, None))(pose, points, offset)
-    m_mean = _small.wsum(mean_w, m, axis=0)
-    dev = m - m_mean
-    cov = _small.weighted_outer(cov_w, dev, dev)
-    cov, _ = _small.floor_eigenvalues2(cov, _cov_floor(cov, m_mean))
-    ok = jnp.all(jnp.isfinite(m_mean)) & jnp.all(jnp.isfinite(cov))
-    return m_mean, cov, ok
-
-
-class _ParticleOut(NamedTuple):
-    pose: Array
-    pose_sqrt: Array
-    log_weight_increment: Array
-    landmarks: LandmarkTable
-    has_match: Array
-    log_det_erb: Array
-    log_det_rb: Array
-    num_matched: Array
-    num_new: Array
-    num_dropped: Array
-    local_overflow: Array
-    finite: Array
-    num_rejected_landmarks: Array
-    num_cov_repairs: Array
-    matched: Array  # (k,) matched observations
-    new: Array  # (k,) observations that started a landmark
-
-
-def _particle_step(
-    key: Array,
-    pose: Array,
-    pose_sqrt: Array,
-    table: LandmarkTable,
-    controls: Array,
-    observation: Observation,
-    params: Params,
-    config: Config,
-) -> _ParticleOut:
-    dtype = pose.dtype
-    capacity = config.capacity
-    z, mask = observation.values, observation.mask
-    offset = jnp.asarray(params.sensor_offset, dtype)
-    half_fov = 0.5 * params.fov
-
-    # 1. prediction
-    pred_mean, pred_sqrt = predict_pose(pose, pose_sqrt, controls, params)
-
-    # 2. association against the local part of the map
-    sensor_xy = sensor_position(pred_mean, offset)
-    local, local_valid, overflow = local_slots(
-        table, sensor_xy, pred_mean[2], params.max_range, half_fov, params.candidate_margin, config.local_size
-    )
-    assoc = associate(pred_mean, pred_sqrt, table, local, local_valid, z, mask, params, config.candidates)
-    matched = assoc.matched
-    has_match = jnp.any(matched)
-    has_new = jnp.any(assoc.new)
-
-    # 3. proposals (both, from one set of sigma-point predictions in batch mode)
-    if config.update == "batch":
-        terms_erb = jax.vmap(innovation_terms, (0, 0, None, None))(assoc.sigma_obs, z, params, False)
-        terms_rb = jax.vmap(innovation_terms, (0, 0, None, None))(assoc.sigma_obs, z, params, True)
-        prop_erb = combine_batch(pred_mean, pred_sqrt, terms_erb, matched)
-        prop_rb = combine_batch(pred_mean, pred_sqrt, terms_rb, matched)
-        own = prop_erb if config.proposal == "erb" else prop_rb
-    else:
-        args = (pred_mean, pred_sqrt, assoc.landmark_means, assoc.landmark_chols, z, matched, params, True)
-        own = PROPOSAL_FUNCTIONS[config.proposal](*args)
-        if config.compare_proposals:
-            other = PROPOSAL_FUNCTIONS["rb" if config.proposal == "erb" else "erb"](*args)
-        else:
-            nan = jnp.full((), jnp.nan, dtype)
-            other = Proposal(own.mean, own.sqrt_cov, nan, own.log_likelihood, own.num_used)
-        prop_erb, prop_rb = (own, other) if config.proposal == "erb" else (other, own)
-
-    # 3b. sampling, the same normals whatever the proposal; 4. weight (eq. 11)
-    eps = jax.random.normal(key, (3,), dtype)
-    from_proposal = own.mean + _small.matvec(own.sqrt_cov, eps)
-    from_prediction = pred_mean + _small.matvec(pred_sqrt, eps)
-    sampled = jnp.where(has_match, from_proposal, jnp.where(has_new, from_prediction, pred_mean))
-    sampled = sampled.at[2].set(wrap_angle(sampled[2]))
-    reset = params.pose_reset_std * jnp.eye(3, dtype=dtype)
-    new_sqrt = jnp.where(has_match | has_new, reset, pred_sqrt)
-    log_w_inc = jnp.where(has_match, own.log_likelihood, jnp.zeros((), dtype))
-    # A particle whose new pose, factor or weight is not finite (-inf, an underflowed
-    # likelihood, is a valid weight) keeps its old pose and map and gets weight zero.
-    finite = (
-        jnp.all(jnp.isfinite(sampled)) & jnp.all(jnp.isfinite(new_sqrt)) & ~jnp.isnan(log_w_inc) & (log_w_inc < jnp.inf)
-    )
-
-    # 5. map. Everything is read from the old table before any slot is written, so the
-    # scatters below can update the tables in place.
-    # 5a. evidence over the local set: +1 matched, -1 expected visible but missed.
-    # Visible: at least `margin` inside the range and inside the field of view's edge
-    # (forward >= r cos(half_fov) + margin; no arctangent needed).
-    local_means = table.means[jnp.minimum(local, capacity - 1)]
-    sensor_xy, cos_h, sin_h = _sensor_frame(sampled, params)
-    rel = local_means - sensor_xy
-    dist = jnp.sqrt(rel[:, 0] ** 2 + rel[:, 1] ** 2)
-    forward = cos_h * rel[:, 0] + sin_h * rel[:, 1]
-    margin = params.visibility_margin
-    visible = local_valid & (dist < params.max_range - margin) & (forward >= dist * jnp.cos(half_fov) + margin)
-    local_matched = jnp.any((local[:, None] == assoc.slots[None, :]) & matched[None, :], axis=1)
-    delta = jnp.where(local_matched, 1.0, jnp.where(visible, -1.0, 0.0)).astype(dtype)
-    local_evidence = table.evidence[jnp.minimum(local, capacity - 1)] + delta
-    alive = local_evidence >= params.prune_threshold
-    num_pruned = jnp.where(finite, jnp.sum(local_valid & ~alive), 0)
-    # Writes to slot `capacity` are dropped: that is how a failed particle keeps its map.
-    local_written = jnp.where(finite, local, capacity)
-
-    # 5b. matched landmarks: unscented update given the sampled pose (a non-finite
-    # update is refused and the landmark kept as it was)
-    lm_means, lm_covs, lm_ok, lm_repaired = jax.vmap(update_landmark, (None, 0, 0, 0, None))(
-        sampled, assoc.landmark_means, table.covs[jnp.minimum(assoc.slots, capacity - 1)], z, params
-    )
-    lm_slots = jnp.where(finite & lm_ok, assoc.slots, capacity)
-    means = table.means.at[lm_slots].set(lm_means, mode="drop")
-    covs = table.covs.at[lm_slots].set(lm_covs, mode="drop")
-
-    evidence = table.evidence.at[local_written].set(local_evidence, mode="drop")
-    active = table.active.at[local_written].set(alive & local_valid, mode="drop")
-
-    # 5c. new landmarks in the first free slots (a non-finite one is not stored)
-    k = z.shape[0]
-    free = free_slots(active, k)
-    rank = jnp.cumsum(assoc.new) - 1
-    new_means, new_covs, new_ok = jax.vmap(initialise_landmark, (None, 0, None))(sampled, z, params)
-    storable = assoc.new & finite & new_ok
-    new_slots = jnp.where(storable, free[jnp.clip(rank, 0, k - 1)], capacity)
-    means = means.at[new_slots].set(new_means, mode="drop")
-    covs = covs.at[new_slots].set(new_covs, mode="drop")
-    evidence = evidence.at[new_slots].set(jnp.broadcast_to(params.new_evidence, (k,)), mode="drop")
-    active = active.at[new_slots].set(True, mode="drop")
-    added = jnp.sum(new_slots < capacity)
-    count = table.count + added - num_pruned
-    dropped = jnp.sum(storable) - added
-    rejected = jnp.sum(finite & ((matched & ~lm_ok) | (assoc.new & ~new_ok)))
-
-    return _ParticleOut(
-        pose=jnp.where(finite, sampled, pose),
-        pose_sqrt=jnp.where(finite, new_sqrt, pose_sqrt),
-        log_weight_increment=jnp.where(finite, log_w_inc, -jnp.inf),
-        landmarks=LandmarkTable(means, covs, evidence, active, count.astype(jnp.int32)),
-        has_match=has_match & finite,
-        log_det_erb=prop_erb.log_det_cov,
-        log_det_rb=prop_rb.log_det_cov,
-        num_matched=jnp.sum(matched),
-        num_new=jnp.sum(assoc.new),
-        num_dropped=dropped,
-        local_overflow=overflow,
-        finite=finite,
-        num_rejected_landmarks=rejected,
-        num_cov_repairs=jnp.sum(finite & matched & lm_repaired),
-        matched=matched,
-        new=assoc.new,
-    )
-
-
-# ----------------------------------------------------------------------- the filter
 
 
 def _disagreement(matched: Array, new: Array, mask: Array) -> Array:
@@ -474,12 +179,14 @@ def _weighted_log_det(log_weights: Array, log_dets: Array, used: Array) -> Array
     return jnp.where(jnp.any(used), value, jnp.nan)
 
 
-def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array, Array]:
-    """Weighted mean pose (heading averaged about the best particle), covariance of
-    the particle mixture, weights and the best particle."""
+def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array]:
+    """Weighted mean pose, covariance of the particle mixture and the weights.
+
+    The mean heading is averaged about the pose of the highest-weight particle (the
+    particle nearest the mean, so that the residuals do not wrap); that reference is
+    a numerical choice only, not the best particle."""
     weights = jnp.exp(log_weights)
-    best = jnp.argmax(log_weights)
-    ref = state.pose_means[best]
+    ref = state.pose_means[jnp.argmax(log_weights)]
     dev = jax.vmap(pose_residual, (0, None))(state.pose_means, ref)
     shift = weights @ dev
     estimate = ref + shift
@@ -487,21 +194,22 @@ def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array, Arr
     dev = dev - shift
     spread = jnp.einsum("m,mi,mj->ij", weights, dev, dev)
     own = jnp.einsum("m,mij,mkj->ik", weights, state.pose_sqrts, state.pose_sqrts)
-    return estimate, spread + own, weights, best
+    return estimate, spread + own, weights
 
 
 def _finish(
     key: Array,
     state: State,
-    out: _ParticleOut | None,
+    out: ParticleOut | None,
     params: Params,
     config: Config,
     invalid: tuple[Array, Array],
     observation_mask: Array,
-) -> tuple[State, Info, Array]:
+) -> tuple[State, Info]:
     dtype = state.pose_means.dtype
     log_w = normalize_log_weights(state.log_weights)
-    estimate, cov, weights, best = _summary(state, log_w)
+    estimate, cov, weights = _summary(state, log_w)
+    best = best_particle(state)
     ess = effective_sample_size(log_w)
     if out is None:
         nan = jnp.full((), jnp.nan, dtype)
@@ -542,6 +250,7 @@ def _finish(
         pose_cov=cov,
         ess=ess,
         resampled=resampled,
+        ancestors=ancestors.astype(jnp.int32),
         weight_variance=jnp.var(weights),
         num_landmarks=state.landmarks.count[best],
         num_landmarks_mean=weights @ state.landmarks.count.astype(dtype),
@@ -554,7 +263,7 @@ def _finish(
         num_landmarks_max=jnp.max(state.landmarks.count),
         **extra,
     )
-    return new_state, info, ancestors
+    return new_state, info
 
 
 def clean_inputs(control: Array, observation: Observation) -> tuple[Array, Observation, Array, Array]:
@@ -592,16 +301,11 @@ def step(
         observation: :class:`Observation` of this scan.
         params: traced parameters.
         config: static configuration.
+
+    Returns:
+        ``(state, info)``; ``info.ancestors`` are the resampling ancestors ``(N,)``
+        (the identity when it did not resample).
     """
-    new_state, info, _ = step_with_ancestors(key, state, control, observation, params, config)
-    return new_state, info
-
-
-def step_with_ancestors(
-    key: Array, state: State, control: Array, observation: Observation, params: Params, config: Config
-) -> tuple[State, Info, Array]:
-    """:func:`step` that also returns the resampling ancestors ``(N,)`` (the identity
-    when it did not resample), for genealogy diagnostics."""
     dtype = state.pose_means.dtype
     params = cast_params(params, dtype)
     control = jnp.asarray(control, dtype)
@@ -611,7 +315,7 @@ def step_with_ancestors(
     particle_keys = jax.random.split(k_sample, config.num_particles)
 
     def particles_step(state, observation):
-        return jax.vmap(_particle_step, (0, 0, 0, 0, None, None, None, None))(
+        return jax.vmap(particle_step, (0, 0, 0, 0, None, None, None, None))(
             particle_keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation, params, config
         )
 
@@ -632,10 +336,12 @@ def step_with_ancestors(
             fits = ~jnp.any(observation.mask[half:])
             out = jax.lax.cond(fits, first_half, lambda s: particles_step(s, observation), state)
         # If every particle failed, the step changes nothing (not even the weights).
-        log_weights = jnp.where(
-            jnp.any(out.finite), state.log_weights + out.log_weight_increment, state.log_weights
+        any_finite = jnp.any(out.finite)
+        log_weights = jnp.where(any_finite, state.log_weights + out.log_weight_increment, state.log_weights)
+        cumulative = jnp.where(
+            any_finite, state.cumulative_log_likelihood + out.log_weight_increment, state.cumulative_log_likelihood
         )
-        updated = State(out.pose, out.pose_sqrt, log_weights, out.landmarks)
+        updated = State(out.pose, out.pose_sqrt, log_weights, cumulative, out.landmarks)
         return _finish(k_resample, updated, out, params, config, invalid, observation.mask)
 
     def idle_step(state):
@@ -647,42 +353,17 @@ def step_with_ancestors(
     return jax.lax.cond(moving, active_step, idle_step, state)
 
 
-def run(
-    key: Array,
-    params: Params,
-    config: Config,
-    controls: Array,
-    observations: Array,
-    obs_mask: Array,
-    initial_pose: Array | None = None,
-) -> tuple[State, Info]:
-    """Scan :func:`step` over a whole sequence.
+run = scan_runner(step)
+run.__doc__ = """Scan :func:`step` over a sequence (:func:`jaxslam.driver.scan_runner`).
 
-    Args:
-        key: PRNG key; step ``t`` uses ``split(key, T)[t]``.
-        params, config: as for :func:`step`.
-        controls: ``(T, K, 3)``.
-        observations: ``(T, Z, 2)``.
-        obs_mask: ``(T, Z)``.
-        initial_pose: ``(3,)``; its dtype sets the filter's dtype.
+Args:
+    key: PRNG key; step ``t`` uses ``jaxslam.driver.step_keys(key, T)[t]``.
+    state: from :func:`init`.
+    controls: ``(T, K, 3)``.
+    observations: :class:`Observation` stacked over ``T``: ``values (T, Z, 2)``,
+        ``mask (T, Z)``.
+    params, config: as for :func:`step`.
 
-    Returns:
-        ``(final_state, infos)`` with every :class:`Info` field stacked over ``T``.
-    """
-    state = init(key, params, config, initial_pose)
-    keys = step_keys(key, np.shape(controls)[0])
-    return _run_jit(keys, state, controls, observations, obs_mask, params, config)
-
-
-def step_keys(key: Array, num_steps: int) -> Array:
-    """The per-step keys :func:`run` uses."""
-    return jax.random.split(jax.random.fold_in(key, 1), num_steps)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(keys, state, controls, observations, obs_mask, params, config):
-    def body(s, xs):
-        k, u, z, m = xs
-        return step(k, s, u, Observation(z, m), params, config)
-
-    return jax.lax.scan(body, state, (keys, controls, observations, obs_mask))
+Returns:
+    ``(final_state, infos)`` with every :class:`Info` field stacked over ``T``.
+"""

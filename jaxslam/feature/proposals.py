@@ -61,6 +61,7 @@ from jaxslam.core.se2 import wrap_angle
 from jaxslam.core.sigma import ut_weights
 from jaxslam.feature import _small
 from jaxslam.feature.params import Params
+from jaxslam.models.range_bearing import observe_unwrapped, sensor_position
 
 POSE_DIM = 3
 LANDMARK_DIM = 2
@@ -111,30 +112,22 @@ def _pose_sigma_sensors(pose_mean: Array, pose_sqrt: Array, params: Params) -> t
     _, _, lam = ut_weights(AUG_DIM, params.ut_update, dtype)
     offsets = jnp.sqrt(AUG_DIM + lam) * pose_sqrt.T
     poses = jnp.concatenate([pose_mean[None], pose_mean + offsets, pose_mean - offsets], 0)
-    offset = jnp.asarray(params.sensor_offset, dtype)
-    c, s = jnp.cos(poses[:, 2]), jnp.sin(poses[:, 2])
-    sensors = jnp.stack([poses[:, 0] + c * offset[0] - s * offset[1], poses[:, 1] + s * offset[0] + c * offset[1]], -1)
+    sensors = jax.vmap(sensor_position, (0, None))(poses, jnp.asarray(params.sensor_offset, dtype))
     return sensors, poses[:, 2]
 
 
 def _assemble(sensors: Array, headings: Array, landmark_mean: Array, landmark_chol: Array, gamma: Array) -> Array:
     """The 11 predicted observations of one landmark (filterpy order), bearings
-    unwrapped about the centre's: ``b_i = b_0 + atan2(d_0 x d_i, d_0 . d_i) - (h_i - h_0)``
-    for the sensor-to-landmark vectors ``d`` and headings ``h`` (one arctangent per
-    point and no wrapping; equal to ``b_0 + wrap(b_i - b_0)``)."""
+    unwrapped about the centre's (:func:`jaxslam.models.range_bearing.observe_unwrapped`)."""
     off = gamma * landmark_chol.T
     zero2 = jnp.zeros((2, 2), landmark_mean.dtype)
     # points: pose 0-3, landmark +cols, pose 4-6, landmark -cols
     sensor = jnp.concatenate([sensors[:4], jnp.broadcast_to(sensors[0], (2, 2)), sensors[4:],
                               jnp.broadcast_to(sensors[0], (2, 2))], 0)
+    heading = jnp.concatenate([headings[:4], jnp.broadcast_to(headings[0], (2,)), headings[4:],
+                               jnp.broadcast_to(headings[0], (2,))])
     landmark = landmark_mean + jnp.concatenate([zero2[:1].repeat(4, 0), off, zero2[:1].repeat(3, 0), -off], 0)
-    dheading = jnp.concatenate([headings[:4] - headings[0], zero2[0], headings[4:] - headings[0], zero2[0]])
-    d = landmark - sensor
-    dx, dy = d[:, 0], d[:, 1]
-    rng = jnp.sqrt(dx * dx + dy * dy)
-    bearing0 = jnp.arctan2(dy[0], dx[0]) - headings[0]
-    bearing = bearing0 + jnp.arctan2(dx[0] * dy - dy[0] * dx, dx[0] * dx + dy[0] * dy) - dheading
-    return jnp.stack([rng, bearing], -1)
+    return observe_unwrapped(sensor, heading, landmark)
 
 
 def sigma_observations(

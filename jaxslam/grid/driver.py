@@ -1,8 +1,8 @@
 """One driver for the grid filters: keys, jit policy, chunked runs and map growth.
 
-* :func:`scan_steps` — the pure ``lax.scan`` of a filter's ``step`` over keyframes,
-  one key per keyframe from ``jax.random.split(key, T)`` (the one way step keys are
-  derived).
+* The filters' ``run`` is :func:`jaxslam.driver.scan_runner` of their ``step``, the
+  driver shared with the landmark filter (one key per keyframe from
+  :func:`jaxslam.driver.step_keys`, the one way step keys are derived).
 * :func:`run_filter` — the host loop used by :func:`jaxslam.grid.experiment.run_grid_slam`,
   the CLI, the notebooks and the benchmarks: ``init`` (jitted), then the keyframes
   in jitted chunks with a progress bar (:func:`jaxslam.progress.run_scan_chunked`).
@@ -17,7 +17,6 @@
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,21 +24,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.driver import chunk_runner as shared_chunk_runner
+from jaxslam.driver import step_keys
 from jaxslam.grid.filter import init, reset_status
 from jaxslam.grid.paged import PagedLayout, grow
 from jaxslam.grid.types import GridSlamConfig
-from jaxslam.progress import log, make_chunk_runner, run_scan_chunked
-
-
-def scan_steps(step_fn, key, state, controls, observations, params, config):
-    """Scan ``step_fn`` over keyframes, one key per keyframe split from ``key``."""
-    keys = jax.random.split(key, observations.ranges.shape[0])
-
-    def body(carry, inputs):
-        k, u, z = inputs
-        return step_fn(k, carry, u, z, params, config)
-
-    return jax.lax.scan(body, state, (keys, controls, observations))
+from jaxslam.progress import log, run_scan_chunked
 
 
 def summarise(info) -> dict[str, Any]:
@@ -57,33 +47,10 @@ def summarise(info) -> dict[str, Any]:
     }
 
 
-def scan_runner(step_fn):
-    """A filter module's ``run``: :func:`scan_steps` of ``step_fn``, jitted with a static
-    config. It does not donate the caller's state."""
-
-    @functools.partial(jax.jit, static_argnames=("config",))
-    def run(key, state, controls, observations, params, config: GridSlamConfig):
-        """Scan ``step`` over keyframes: ``controls`` stacked over ``T``, ``observations (T, B)``.
-
-        A step refused by the maps (``state.status``) leaves the rest of the scan a no-op;
-        :func:`run_filter` grows the maps and continues instead.
-        """
-        return scan_steps(step_fn, key, state, controls, observations, params, config)
-
-    return run
-
-
-@functools.lru_cache(maxsize=32)
 def chunk_runner(step_fn, config: GridSlamConfig):
-    """The jitted chunk runner of ``step_fn`` under ``config`` (cached: one per shape)."""
-
-    def body(carry, x):
-        state, params = carry
-        key, control, observation = x
-        state, info = step_fn(key, state, control, observation, params, config)
-        return (state, params), summarise(info)
-
-    return make_chunk_runner(body)
+    """The jitted chunk runner of ``step_fn`` under ``config``, keeping :func:`summarise`
+    of each step (cached: one per static config; :func:`jaxslam.driver.chunk_runner`)."""
+    return shared_chunk_runner(step_fn, config, summarise)
 
 
 @dataclass
@@ -150,7 +117,7 @@ def run_filter(
     """
     stats = RunStats()
     steps = observations.ranges.shape[0]
-    keys = jax.random.split(key, steps)
+    keys = step_keys(key, steps)
     init_key = key  # init is deterministic; it takes the key only for the protocol
     xs = (keys, controls, observations)
     if checkpoint is not None and checkpoint.resume and checkpoint.path.exists():
@@ -190,7 +157,5 @@ __all__ = [
     "init_state",
     "layout_json",
     "run_filter",
-    "scan_runner",
-    "scan_steps",
     "summarise",
 ]

@@ -17,7 +17,8 @@ unchanged with ``status`` set, later steps pass through (:func:`guard`), and the
 host grows the maps and repeats the step (:func:`jaxslam.grid.driver.run`).
 
 Best particle: the particle with the largest accumulated log-likelihood
-(GMapping's ``weightSum``), :func:`best_particle`.
+(GMapping's ``weightSum``), :func:`jaxslam.driver.best_particle`, the meaning both
+filter families share (see :mod:`jaxslam.driver`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
+from jaxslam.driver import best_particle
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.score import ScoreModel, beam_points
 from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
@@ -198,11 +200,6 @@ def guard(step_fn):
     guarded.__name__ = getattr(step_fn, "__name__", "step")
     guarded.__wrapped__ = step_fn
     return guarded
-
-
-def best_particle(state: GridSlamState) -> Array:
-    """Index of the particle with the largest accumulated log-likelihood."""
-    return jnp.argmax(state.cumulative_log_likelihood)
 
 
 def reset_status(state: GridSlamState) -> GridSlamState:

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxslam.grid.driver import scan_runner
+from jaxslam.driver import scan_runner
 from jaxslam.grid.filter import (
     finish_step,
     guard,

@@ -46,6 +46,7 @@ import numpy as np
 
 from jaxslam.datasets.geometry import se2_between, se2_compose
 from jaxslam.datasets.rosbag import interpolate_odometry
+from jaxslam.driver import step_keys
 from jaxslam.grid import driver, gmapping, srupf
 from jaxslam.grid.experiment import best_trajectory, make_config, map_layout
 from jaxslam.grid.paged import stitch
@@ -243,7 +244,9 @@ class StreamingGridSlam:
             size = 1024 if self._keys is None else 2 * self._keys.shape[0]
             while size <= index:
                 size *= 2
-            self._keys = jax.random.split(self.key, size)
+            # step_keys(key, n)[i] does not depend on n (threefry-partitionable
+            # keys), so a longer table keeps the keys handed out so far.
+            self._keys = step_keys(self.key, size)
         return self._keys[index]
 
     def _process(self, stamp, ranges, valid, offset, odom) -> bool:

@@ -39,8 +39,34 @@ def sensor_position(pose: Array, offset: Array) -> Array:
 def observe(pose: Array, landmark: Array, offset: Array | None = None) -> Array:
     """Range and bearing ``(2,)`` of ``landmark`` ``(2,)`` from the sensor of ``pose``."""
     p = pose[:2] if offset is None else sensor_position(pose, offset)
-    d = landmark - p
-    return jnp.stack([jnp.sqrt(d[0] ** 2 + d[1] ** 2), wrap_angle(jnp.arctan2(d[1], d[0]) - pose[2])])
+    rng, bearing = observe_unwrapped(p[None], pose[2:3], landmark[None])[0]
+    return jnp.stack([rng, wrap_angle(bearing)])
+
+
+def observe_unwrapped(sensors: Array, headings: Array, landmarks: Array) -> Array:
+    r"""Range and bearing ``(n, 2)`` of ``landmarks[i]`` seen from ``sensors[i]`` with
+    heading ``headings[i]``, the bearings unwrapped about the first one's:
+
+    .. math::
+        eta_i = eta_0 + \operatorname{atan2}(d_0 	imes d_i,\ d_0 \cdot d_i)
+        - (\phi_i - \phi_0), \qquad d_i = m_i - p_i,
+
+    which equals :math:`eta_0 + \operatorname{wrap}(eta_i - eta_0)` with one
+    arctangent per point and no wrapping. This is the form an unscented transform
+    needs (the weighted mean of the sigma points' bearings is then valid); the
+    bearings are wrapped only where a residual is formed.
+
+    Args:
+        sensors: ``(n, 2)`` sensor positions (:func:`sensor_position`).
+        headings: ``(n,)`` headings of the poses.
+        landmarks: ``(n, 2)`` landmark positions.
+    """
+    d = landmarks - sensors
+    dx, dy = d[:, 0], d[:, 1]
+    rng = jnp.sqrt(dx * dx + dy * dy)
+    bearing0 = jnp.arctan2(dy[0], dx[0]) - headings[0]
+    bearing = bearing0 + jnp.arctan2(dx[0] * dy - dy[0] * dx, dx[0] * dx + dy[0] * dy) - (headings - headings[0])
+    return jnp.stack([rng, bearing], -1)
 
 
 def inverse_observe(pose: Array, observation: Array, offset: Array | None = None) -> Array:

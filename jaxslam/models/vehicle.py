@@ -53,7 +53,41 @@ class CarGeometry(NamedTuple):
 
 def centre_speed(encoder_speed: Array, steering: Array, geometry: CarGeometry) -> Array:
     """Speed of the rear-axle centre from the rear-left encoder speed."""
-    return encoder_speed / (1.0 - jnp.tan(steering) * geometry.encoder_offset / geometry.wheelbase)
+    return _centre_speed(encoder_speed, jnp.tan(steering), geometry)
+
+
+def _centre_speed(encoder_speed: Array, tan_steering: Array, geometry: CarGeometry) -> Array:
+    return encoder_speed / (1.0 - tan_steering * geometry.encoder_offset / geometry.wheelbase)
+
+
+def motion_step(
+    pose: Array, cos_heading: Array, sin_heading: Array, encoder_speed: Array, tan_steering: Array, dt: Array,
+    geometry: CarGeometry,
+) -> Array:
+    """The Euler step of the car model (module docstring) from precomputed
+    trigonometry: ``cos_heading``, ``sin_heading`` of ``pose[..., 2]`` and
+    ``tan_steering``; the heading is not wrapped and ``dt <= 0`` is not special.
+
+    :func:`car_motion` is this step for one pose. Broadcasts over leading axes, so a
+    caller that evaluates the model at many points sharing few headings or steering
+    angles (the unscented prediction's 11 sigma points have 7 headings and 3 steering
+    angles) computes the trigonometry once per distinct value.
+
+    Returns:
+        ``(..., 3)`` moved poses.
+    """
+    v_c = _centre_speed(encoder_speed, tan_steering, geometry)
+    omega = v_c * tan_steering / geometry.wheelbase
+    c, s = cos_heading, sin_heading
+    a, b = geometry.point_forward, geometry.point_left
+    return jnp.stack(
+        [
+            pose[..., 0] + dt * (v_c * c - omega * (a * s + b * c)),
+            pose[..., 1] + dt * (v_c * s + omega * (a * c - b * s)),
+            pose[..., 2] + dt * omega,
+        ],
+        -1,
+    )
 
 
 def car_motion(pose: Array, control: Array, geometry: CarGeometry = CarGeometry()) -> Array:
@@ -68,18 +102,8 @@ def car_motion(pose: Array, control: Array, geometry: CarGeometry = CarGeometry(
         The new pose ``(3,)``, heading wrapped; ``pose`` itself when ``dt <= 0``.
     """
     speed, steering, dt = control[0], control[1], control[2]
-    tan_steer = jnp.tan(steering)
-    v_c = speed / (1.0 - tan_steer * geometry.encoder_offset / geometry.wheelbase)
-    omega = v_c * tan_steer / geometry.wheelbase
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    a, b = geometry.point_forward, geometry.point_left
-    moved = jnp.stack(
-        [
-            pose[0] + dt * (v_c * c - omega * (a * s + b * c)),
-            pose[1] + dt * (v_c * s + omega * (a * c - b * s)),
-            wrap_angle(pose[2] + dt * omega),
-        ]
-    )
+    moved = motion_step(pose, jnp.cos(pose[2]), jnp.sin(pose[2]), speed, jnp.tan(steering), dt, geometry)
+    moved = jnp.stack([moved[0], moved[1], wrap_angle(moved[2])])
     return jnp.where(dt > 0, moved, pose)
 
 

@@ -143,12 +143,14 @@ class RerunLog:
         """A ``callback(carry, steps_done)`` for :func:`run_landmark_slam`: particles and
         the best particle's landmarks after each chunk."""
 
+        from jaxslam.driver import best_particle
+
         def callback(carry, done):
             state = carry[0]
             step = int(done) - 1
             self.at(offset + step, float(times[step]) if step < len(times) else None)
             self.particles(np.asarray(state.pose_means))
-            best = int(np.argmax(np.asarray(state.log_weights)))
+            best = int(best_particle(state))
             active = np.asarray(state.landmarks.active[best])
             self.landmarks(np.asarray(state.landmarks.means[best])[active], np.asarray(state.landmarks.covs[best])[active])
 

@@ -11,6 +11,7 @@ import pytest
 
 from jaxslam.calibrate import landmark as L
 from jaxslam.datasets.landmark_sim import simulate
+from jaxslam.driver import step_keys
 from jaxslam.feature import filter as F
 from jaxslam.feature.experiment import params_for
 from jaxslam.feature.params import Config
@@ -33,7 +34,7 @@ def test_forward_pass_is_the_filter():
     @jax.jit
     def both(key):
         state = F.init(key, params, CONFIG, jnp.zeros(3, jnp.float64))
-        keys = F.step_keys(key, SIM["num_steps"])
+        keys = step_keys(key, SIM["num_steps"])
 
         def body(carry, xs):
             a, b = carry

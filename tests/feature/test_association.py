@@ -1,4 +1,5 @@
-"""Data association, landmark tables and local candidate sets on constructed cases."""
+"""Data association, landmark tables and local candidate sets on constructed cases
+(the association decisions in float64 and in the production float32)."""
 
 from __future__ import annotations
 
@@ -17,19 +18,20 @@ from .conftest import observe_np
 PARAMS = Params(range_std=0.3, bearing_std=math.radians(1.0), max_range=30.0)
 
 
-def _table(points, capacity=8, std=0.2):
-    t = empty_table(capacity, jnp.float64)
+def _table(points, capacity=8, std=0.2, dtype=np.float64):
+    t = empty_table(capacity, dtype)
     n = len(points)
-    means = t.means.at[:n].set(jnp.asarray(points))
-    covs = t.covs.at[:n].set(std**2 * jnp.eye(2))
+    means = t.means.at[:n].set(jnp.asarray(points, dtype))
+    covs = t.covs.at[:n].set(std**2 * jnp.eye(2, dtype=dtype))
     active = t.active.at[:n].set(True)
     return LandmarkTable(means, covs, t.evidence, active, jnp.asarray(n, jnp.int32))
 
 
 def _run(table, pose, observations, mask=None, candidates=2):
-    pose = jnp.asarray(pose)
-    sqrt = jnp.diag(jnp.asarray([0.05, 0.05, 0.002]))
-    obs = jnp.asarray(observations)
+    dtype = table.means.dtype
+    pose = jnp.asarray(pose, dtype)
+    sqrt = jnp.diag(jnp.asarray([0.05, 0.05, 0.002], dtype))
+    obs = jnp.asarray(observations, dtype)
     mask = jnp.ones(obs.shape[0], bool) if mask is None else jnp.asarray(mask)
     local, valid, _ = local_slots(table, pose[:2], pose[2], PARAMS.max_range, math.pi / 2, 5.0, 6)
     return jax.jit(associate, static_argnames="num_candidates")(
@@ -37,22 +39,23 @@ def _run(table, pose, observations, mask=None, candidates=2):
     )
 
 
-def test_picks_the_right_landmark():
+def test_picks_the_right_landmark(dtype):
     # Three trees 2.5 m apart across the line of sight; observe the middle one.
     lms = np.array([[10.0, -2.5], [10.0, 0.0], [10.0, 2.5]])
-    table = _table(lms)
+    table = _table(lms, dtype=dtype)
     pose = np.zeros(3)
     z = observe_np(pose, lms[1] + np.array([0.1, -0.05]))
     out = _run(table, pose, [z])
     assert bool(out.matched[0])
     assert int(out.slots[0]) == 1
     assert not bool(out.new[0])
+    assert out.landmark_means.dtype == dtype
     np.testing.assert_allclose(np.asarray(out.landmark_means[0]), lms[1])
 
 
-def test_new_ignored_and_padding():
+def test_new_ignored_and_padding(dtype):
     lms = np.array([[10.0, 0.0]])
-    table = _table(lms)
+    table = _table(lms, dtype=dtype)
     pose = np.zeros(3)
     far = observe_np(pose, np.array([10.0, 8.0]))  # far from everything: new landmark
     between = observe_np(pose, np.array([10.0, 0.9]))  # outside the gate, not far enough: ignored
@@ -64,9 +67,9 @@ def test_new_ignored_and_padding():
     assert not bool(out.matched[2]) and not bool(out.new[2])
 
 
-def test_one_landmark_one_observation():
+def test_one_landmark_one_observation(dtype):
     lms = np.array([[12.0, 1.0]])
-    table = _table(lms)
+    table = _table(lms, dtype=dtype)
     pose = np.zeros(3)
     close = observe_np(pose, lms[0] + np.array([0.02, 0.0]))
     worse = observe_np(pose, lms[0] + np.array([0.3, 0.1]))
@@ -75,8 +78,8 @@ def test_one_landmark_one_observation():
     assert not bool(out.matched[0])
 
 
-def test_empty_map_makes_everything_new():
-    table = empty_table(8, jnp.float64)
+def test_empty_map_makes_everything_new(dtype):
+    table = empty_table(8, dtype)
     out = _run(table, np.zeros(3), [[5.0, 0.1], [7.0, -0.3]])
     assert np.all(np.asarray(out.new))
     assert not np.any(np.asarray(out.matched))

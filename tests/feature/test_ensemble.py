@@ -21,17 +21,17 @@ def test_members_equal_single_seed_runs(algorithm):
     seq = simulate(seed=3, **SIM)
     seeds = (0, 5, 11)
     result = ensemble.run_landmark_ensemble(seq, algorithm, particles=12, seeds=seeds, config=CONFIG)
-    assert result.trajectories.shape == (3, 30, 3)
+    assert result.trajectory.shape == (3, 30, 3)
     for i, seed in enumerate(seeds):
         single = run_landmark_slam(seq, algorithm, particles=12, seed=seed, config=CONFIG, progress=False)
         # Bit for bit: vmap over seeds does not change any per-seed arithmetic here.
-        np.testing.assert_array_equal(result.trajectories[i], single.trajectory)
+        np.testing.assert_array_equal(result.trajectory[i], single.trajectory)
         for name, value in single.info.items():
             np.testing.assert_array_equal(result.info[name][i], value, err_msg=name)
         np.testing.assert_array_equal(result.state.log_weights[i], single.state.log_weights)
         np.testing.assert_array_equal(result.state.landmarks.means[i], single.state.landmarks.means)
     # Different seeds give different runs (the keys really differ).
-    assert not np.array_equal(result.trajectories[0], result.trajectories[1])
+    assert not np.array_equal(result.trajectory[0], result.trajectory[1])
 
 
 def test_params_sweep_does_not_recompile():
@@ -44,7 +44,7 @@ def test_params_sweep_does_not_recompile():
     single = run_landmark_slam(
         seq, "erb-upf", particles=12, seed=3, config=CONFIG, params={"range_std": 0.7}, progress=False
     )
-    np.testing.assert_array_equal(second.trajectories[1], single.trajectory)
+    np.testing.assert_array_equal(second.trajectory[1], single.trajectory)
 
 
 def test_bad_seeds():

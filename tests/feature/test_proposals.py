@@ -1,4 +1,5 @@
-"""The RB and ERB proposals against a dense float64 reference, and their ordering."""
+"""The RB and ERB proposals against a dense float64 reference (in float64 and in the
+production float32), and their ordering."""
 
 from __future__ import annotations
 
@@ -53,17 +54,30 @@ def _ours(fn, pose, pose_cov, landmarks, lcovs, obs, mask=None, dtype=jnp.float6
     )
 
 
+# Absolute tolerances against the float64 reference. float64: rounding only. float32
+# (eps 1.2e-7): poses and landmarks up to ~30 m resolve to ~4e-6 m, and the
+# covariances (~1e-2..1) come from differences of sigma points, so each loses a few
+# digits; over 32 random cases the worst errors were mean 2.6e-6, covariance 2.3e-7,
+# log-likelihood 1.1e-5 and log-determinant 2.3e-6: the bounds are ~10x those.
+PROPOSAL_TOL = {
+    np.float64: dict(mean=1e-9, cov=1e-10, log_likelihood=1e-8, log_det=1e-8),
+    np.float32: dict(mean=3e-5, cov=3e-6, log_likelihood=1e-4, log_det=3e-5),
+}
+
+
 @pytest.mark.parametrize("perfect_map", [False, True])
 @pytest.mark.parametrize("k", [1, 3])
-def test_matches_dense_reference(perfect_map, k):
+def test_matches_dense_reference(perfect_map, k, dtype):
+    tol = PROPOSAL_TOL[dtype]
     pose, pose_cov, lms, lcovs, obs = _case(k, k)
     ref_mean, ref_cov, ref_ll = dense_proposal(pose, pose_cov, lms, lcovs, obs, R, perfect_map=perfect_map)
-    prop = _ours(rb_proposal if perfect_map else erb_proposal, pose, pose_cov, lms, lcovs, obs)
-    cov = np.asarray(prop.sqrt_cov @ prop.sqrt_cov.T)
-    np.testing.assert_allclose(np.asarray(prop.mean), ref_mean, atol=1e-9)
-    np.testing.assert_allclose(cov, ref_cov, atol=1e-10)
-    np.testing.assert_allclose(float(prop.log_likelihood), ref_ll, rtol=1e-9)
-    np.testing.assert_allclose(float(prop.log_det_cov), np.linalg.slogdet(ref_cov)[1], rtol=1e-8)
+    prop = _ours(rb_proposal if perfect_map else erb_proposal, pose, pose_cov, lms, lcovs, obs, dtype=dtype)
+    assert prop.mean.dtype == dtype and prop.sqrt_cov.dtype == dtype
+    cov = np.asarray(prop.sqrt_cov @ prop.sqrt_cov.T, np.float64)
+    np.testing.assert_allclose(np.asarray(prop.mean, np.float64), ref_mean, atol=tol["mean"])
+    np.testing.assert_allclose(cov, ref_cov, atol=tol["cov"])
+    np.testing.assert_allclose(float(prop.log_likelihood), ref_ll, atol=tol["log_likelihood"])
+    np.testing.assert_allclose(float(prop.log_det_cov), np.linalg.slogdet(ref_cov)[1], atol=tol["log_det"])
 
 
 def test_masked_rows_are_ignored():
@@ -147,6 +161,7 @@ def test_small_linear_algebra():
     np.testing.assert_allclose(l, np.linalg.cholesky(spd), atol=1e-12)
     np.testing.assert_allclose(np.asarray(_small.tril_inv3(jnp.asarray(l))), np.linalg.inv(l), atol=1e-10)
     np.testing.assert_allclose(np.asarray(_small.det3(jnp.asarray(a))), np.linalg.det(a), atol=1e-10)
+    np.testing.assert_allclose(np.asarray(_small.tril_logdet(jnp.asarray(l))), np.linalg.slogdet(spd)[1], atol=1e-10)
     inv, logdet = _small.inv2(jnp.asarray(spd[:, :2, :2]))
     np.testing.assert_allclose(np.asarray(inv), np.linalg.inv(spd[:, :2, :2]), atol=1e-10)
     np.testing.assert_allclose(np.asarray(logdet), np.linalg.slogdet(spd[:, :2, :2])[1], atol=1e-12)

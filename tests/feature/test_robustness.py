@@ -16,7 +16,9 @@ from hypothesis import strategies as st
 
 from jaxslam.datasets.landmark_sim import simulate
 from jaxslam.datasets.paths import DatasetNotFoundError
+from jaxslam.driver import step_keys
 from jaxslam.feature import filter as F
+from jaxslam.feature import particle as P
 from jaxslam.feature.experiment import params_for, run_landmark_slam
 from jaxslam.feature.params import Config
 
@@ -40,7 +42,7 @@ def _inputs(seq, t, dtype):
 def _warm_state(seq, params, dtype, steps=10):
     """The state after ``steps`` clean steps (a map to associate against)."""
     state = F.init(None, params, CONFIG, jnp.zeros(3, dtype))
-    keys = F.step_keys(jax.random.PRNGKey(0), steps)
+    keys = step_keys(jax.random.PRNGKey(0), steps)
     for t in range(steps):
         state, _ = F.step(keys[t], state, *_inputs(seq, t, dtype), params, CONFIG)
     return state
@@ -50,7 +52,7 @@ def _run_steps(seq, params, dtype, controls, observations, mask, seed=0):
     """Step by step (sharing ``F.step``'s compiled code with the other tests):
     ``(final state, stacked Info)``."""
     state = F.init(None, params, CONFIG, jnp.zeros(3, dtype))
-    keys = F.step_keys(jax.random.PRNGKey(seed), controls.shape[0])
+    keys = step_keys(jax.random.PRNGKey(seed), controls.shape[0])
     infos = []
     for t in range(controls.shape[0]):
         observation = F.Observation(jnp.asarray(observations[t], dtype), jnp.asarray(mask[t]))
@@ -105,7 +107,7 @@ def test_every_likelihood_underflows_without_nan(sim):
     assert bool(info.updated) and int(info.num_nonfinite_particles) == 0
     # the increments themselves: exp() of every one is 0 in this dtype
     keys = jax.random.split(jax.random.split(jax.random.PRNGKey(5))[0], CONFIG.num_particles)
-    particle_steps = jax.jit(jax.vmap(F._particle_step, (0, 0, 0, 0, None, None, None, None)), static_argnums=7)
+    particle_steps = jax.jit(jax.vmap(P.particle_step, (0, 0, 0, 0, None, None, None, None)), static_argnums=7)
     out = particle_steps(
         keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation,
         F.cast_params(absurd, dtype), CONFIG,
@@ -182,8 +184,10 @@ def test_a_particle_that_goes_nan_is_reported_and_not_propagated(sim, dtype):
     keep = params._replace(resample_threshold=0.0)  # never resample: see the -inf weight
     new, info = F.step(jax.random.PRNGKey(5), state, *_inputs(sim, 10, dtype), keep, CONFIG)
     assert int(info.num_nonfinite_particles) == 1
-    assert _all_finite(new._replace(log_weights=new.log_weights[1:]))
+    assert _all_finite(new._replace(log_weights=new.log_weights[1:],
+                                    cumulative_log_likelihood=new.cumulative_log_likelihood[1:]))
     assert float(new.log_weights[0]) == -np.inf  # weight zero: resampling drops it
+    assert float(new.cumulative_log_likelihood[0]) == -np.inf  # never the best particle
     assert np.all(np.isfinite(np.asarray(info.pose_estimate))) and np.all(np.isfinite(np.asarray(info.pose_cov)))
     np.testing.assert_array_equal(new.pose_means[0], state.pose_means[0])  # kept, not propagated
     np.testing.assert_array_equal(new.landmarks.means[0], state.landmarks.means[0])
@@ -238,19 +242,19 @@ def test_landmark_update_stays_positive_definite(case, dtype):
     rel = np.asarray(mean, np.float64)
     predicted = np.array([np.hypot(*rel), np.arctan2(rel[1], rel[0])])
     z = jnp.asarray(predicted + np.asarray(offset), dtype)
-    new_mean, new_cov, ok, repaired = jax.jit(F.update_landmark)(pose, mean, cov, z, params)
+    new_mean, new_cov, ok, repaired = jax.jit(P.update_landmark)(pose, mean, cov, z, params)
     assert np.all(np.isfinite(np.asarray(new_mean)))
     _assert_pd(new_cov)
     if not bool(ok):
         np.testing.assert_array_equal(new_cov, cov)
     if case == "tiny-R":  # P - K S K^T cancels to (nearly) zero: the floor is what keeps it PD
         assert bool(ok) and bool(repaired)
-    m, c, ok_new = jax.jit(F.initialise_landmark)(pose, z, params)
+    m, c, ok_new = jax.jit(P.initialise_landmark)(pose, z, params)
     assert bool(ok_new) and np.all(np.isfinite(np.asarray(m)))
     _assert_pd(c)
 
 
-_update_jit = jax.jit(F.update_landmark)
+_update_jit = jax.jit(P.update_landmark)
 
 
 @settings(max_examples=200)

@@ -10,7 +10,8 @@ import pytest
 
 from jaxslam.datasets.landmark_sim import simulate
 from jaxslam.feature import filter as F
-from jaxslam.feature.experiment import params_for, run_landmark_seeds, run_landmark_slam
+from jaxslam.feature.ensemble import run_landmark_ensemble
+from jaxslam.feature.experiment import params_for, run_landmark_slam
 from jaxslam.feature.params import Config
 
 SIM = dict(num_steps=30, max_observations=20)
@@ -20,7 +21,7 @@ CONFIG = dict(capacity=96, local_size=48)
 @pytest.fixture(scope="module")
 def ensemble():
     seq = simulate(seed=0, **SIM)
-    return seq, run_landmark_seeds(seq, "erb-upf", particles=8, seeds=[0, 2], config=CONFIG)
+    return seq, run_landmark_ensemble(seq, "erb-upf", particles=8, seeds=[0, 2], config=CONFIG)
 
 
 @pytest.mark.slow

@@ -1,0 +1,107 @@
+r"""The filter protocol that the landmark and the grid filters share, and its driver.
+
+Every filter module (:mod:`jaxslam.feature.filter`, :mod:`jaxslam.grid.gmapping`,
+:mod:`jaxslam.grid.srupf`) offers
+
+* ``init(key, params, config, ...) -> State``, jitted with a static ``config``. The
+  initial state is deterministic: ``key`` is accepted for the common signature and
+  not used (an ``init`` that ever draws must use ``fold_in(key, ...)``, not the
+  step keys below).
+* ``step(key, state, control, observation, params, config) -> (State, Info)``, a
+  pure function traced inside ``run`` and the chunk runners (the landmark ``step`` is
+  also jitted on its own, for direct calls; the grid ``step`` is not);
+  ``Info`` always has ``ess`` (before resampling), ``resampled`` and ``ancestors``
+  ``(N,)`` (the identity when it did not resample).
+* ``run(key, state, controls, observations, params, config) -> (State, Info)``:
+  :func:`scan_runner` of its ``step``, ``Info`` stacked over the steps.
+
+**Step keys.** Step ``t`` of a run uses ``step_keys(key, T)[t]``, i.e.
+``jax.random.split(key, T)[t]`` (:func:`step_keys`), whichever driver runs it
+(:func:`scan_steps`, the chunked runner of the CLI, the seed ensembles).
+
+**Best particle.** The particle with the largest accumulated log-likelihood
+:math:`\sum_t \log p(z_t \mid x^{[m]}_t, m^{[m]}_{t-1})` of its history (GMapping's
+``weightSum``), carried with the particle through resampling in
+``State.cumulative_log_likelihood`` (:func:`best_particle`). Not the highest current
+weight: right after a resampling every weight is equal and the argmax would be an
+arbitrary particle, and the grid filters temper their weights (``weight_gain``).
+
+**Runners.** :func:`chunk_runner` is the jitted chunk runner of a ``step`` under a
+static config, cached per ``(step, config, summary)``: the CLI, the notebooks and the
+benchmarks run through it, so a sweep over ``Params`` (traced) never recompiles.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from jaxslam.progress import make_chunk_runner
+
+
+def step_keys(key: Array, num_steps: int) -> Array:
+    """The keys of steps ``0..num_steps-1`` of a run started with ``key``."""
+    return jax.random.split(key, num_steps)
+
+
+def num_steps(xs: Any) -> int:
+    """The common leading (time) length of the arrays of ``xs``."""
+    leaves = jax.tree_util.tree_leaves(xs)
+    if not leaves:
+        raise ValueError("the inputs have no arrays to scan over")
+    return int(jnp.shape(leaves[0])[0])
+
+
+def scan_steps(step_fn, key: Array, state, controls, observations, params, config):
+    """``lax.scan`` of ``step_fn`` over the steps, one key per step (:func:`step_keys`)."""
+    keys = step_keys(key, num_steps(observations))
+
+    def body(carry, inputs):
+        k, u, z = inputs
+        return step_fn(k, carry, u, z, params, config)
+
+    return jax.lax.scan(body, state, (keys, controls, observations))
+
+
+def scan_runner(step_fn):
+    """A filter module's ``run``: :func:`scan_steps` of ``step_fn``, jitted with a static
+    ``config``. It does not donate the caller's state."""
+
+    @functools.partial(jax.jit, static_argnames=("config",))
+    def run(key, state, controls, observations, params, config):
+        """Scan ``step`` over a sequence: ``controls`` and ``observations`` stacked over
+        the steps; step ``t`` uses ``step_keys(key, T)[t]``.
+
+        Returns:
+            ``(final_state, infos)`` with every ``Info`` field stacked over the steps.
+        """
+        return scan_steps(step_fn, key, state, controls, observations, params, config)
+
+    return run
+
+
+@functools.lru_cache(maxsize=32)
+def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None):
+    """The jitted chunk runner of ``step_fn`` under ``config`` (cached: one per static
+    config). Its carry is ``(state, params)``, its inputs ``(key, control, observation)``
+    per step, its outputs ``summary(info)`` (``info`` itself by default)."""
+
+    def body(carry, x):
+        state, params = carry
+        key, control, observation = x
+        state, info = step_fn(key, state, control, observation, params, config)
+        return (state, params), info if summary is None else summary(info)
+
+    return make_chunk_runner(body)
+
+
+def best_particle(state) -> Array:
+    """Index of the particle with the largest accumulated log-likelihood (see above)."""
+    return jnp.argmax(state.cumulative_log_likelihood)
+
+
+__all__ = ["best_particle", "chunk_runner", "num_steps", "scan_runner", "scan_steps", "step_keys"]
