@@ -147,7 +147,7 @@ def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
             raise RunError(f"--set {name}: parameter {name!r} is not a single number and cannot be set here")
 
 
-def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
+def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
                  checkpoint=None, viz=None):
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.trajectory_io import write_tum
@@ -229,7 +229,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 # --------------------------------------------------------------------------- grid
 
 
-def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
+def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
              checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None):
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.trajectory_io import write_tum
@@ -452,7 +452,7 @@ def run(
 
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
-    args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
+    args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype)
     if kind == "laser":
         args = (info, path) + args[1:]
     extra = {"keyframes": keyframes} if keyframes else {}
