@@ -54,10 +54,8 @@ angle, resolution, range limit) within one log is an error unless
 from __future__ import annotations
 
 import dataclasses
-import gzip
 import math
 import os
-import zlib
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +63,7 @@ import numpy as np
 
 from jaxslam.datasets.geometry import se2_between, wrap_angle
 from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.reader import read_bytes
 
 __all__ = [
     "CarmenLog",
@@ -84,7 +83,6 @@ The nominal range of the SICK LMS 2xx that recorded the Freiburg/Radish logs; it
 "no return" codes (81.83, 81.87, 81.89, 81.91 m) all lie above it.
 """
 
-_GZIP_MAGIC = b"\x1f\x8b"
 _FLASER_TAIL = 9  # x y theta odom_x odom_y odom_theta ipc_ts host logger_ts
 _ROBOTLASER1_TAIL = 14  # 6 poses, tv rv fwd side turn, ipc_ts host logger_ts
 _ODOM_FIELDS = 10
@@ -189,34 +187,6 @@ def guess_angular_resolution(num_beams: int) -> float:
     if num_beams % 2:
         return math.pi / max(num_beams - 1, 1)
     return math.pi / num_beams
-
-
-def _read_bytes(path: Path) -> bytes:
-    """The text of ``path``, gunzipped when it starts with the gzip magic."""
-    try:
-        with open(path, "rb") as handle:
-            head = handle.read(2)
-            if head != _GZIP_MAGIC:
-                return head + handle.read()
-    except IsADirectoryError as error:
-        raise DataFormatError(path, None, "is a directory, not a CARMEN log") from error
-    chunks: list[bytes] = []
-    try:
-        with gzip.open(path, "rb") as stream:
-            while True:
-                chunk = stream.read(1 << 18)
-                if not chunk:
-                    break
-                chunks.append(chunk)
-    except (EOFError, OSError, zlib.error) as error:
-        complete = sum(chunk.count(b"\n") for chunk in chunks)
-        raise DataFormatError(
-            path,
-            complete + 1,
-            f"gzip stream is truncated or corrupt after {complete} complete lines "
-            f"({type(error).__name__}: {error}); re-download the file",
-        ) from error
-    return b"".join(chunks)
 
 
 def _float(token: bytes, what: str) -> float:
@@ -693,7 +663,7 @@ def load_carmen(
     if message not in (None, "FLASER", "ROBOTLASER1"):
         raise ValueError(f"message must be 'FLASER' or 'ROBOTLASER1', got {message!r}")
     path = Path(path)
-    text = _read_bytes(path)
+    text = read_bytes(path, "CARMEN log")
     collector = _Collector(path, on_error)
     scan_type = None if message is None else message.encode()
 

@@ -67,7 +67,6 @@ benchmark's format ``t1 t2 x y z roll pitch yaw``.
 from __future__ import annotations
 
 import dataclasses
-import gzip
 import os
 from pathlib import Path
 
@@ -75,6 +74,7 @@ import numpy as np
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, wrap_angle
 from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.reader import read_bytes
 
 __all__ = [
     "CORRECTED_LOGS",
@@ -252,7 +252,7 @@ def load_reference_log(name_or_path: os.PathLike | str) -> ReferenceLog:
     log = load_dataset_log(stem, max_backstep=np.inf) if known else load_carmen(path, max_backstep=np.inf)
     if log.message != "FLASER":
         raise DataFormatError(path, None, f"expected a FLASER log, got {log.message}")
-    raw = gzip.open(path, "rb").read() if path.read_bytes()[:2] == b"\x1f\x8b" else path.read_bytes()
+    raw = read_bytes(path, "CARMEN log")
     lines = raw.split(b"\n")
     tokens = []
     for line_number in log.scan_lines.tolist():

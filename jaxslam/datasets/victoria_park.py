@@ -99,11 +99,8 @@ car stands still for the first ~20 s); a filter that wants the same behaviour ca
 from __future__ import annotations
 
 import dataclasses
-import gzip
-import io
 import os
 import re
-import zlib
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +108,7 @@ import numpy as np
 
 from jaxslam.datasets import trees
 from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.reader import check_printable, load_npz, read_text
 
 DATASET = "Victoria Park"
 FOLDER = "victoria_park"
@@ -225,61 +223,7 @@ class VictoriaParkSequence:
 # --------------------------------------------------------------------------- parsing
 
 
-_GZIP_MAGIC = b"\x1f\x8b"
-# Printable ASCII and the usual whitespace; anything else (NUL, other control bytes,
-# non-ASCII, which decodes to U+FFFD) is reported as such rather than as a bad number.
-_UNPRINTABLE = re.compile(r"[^\x20-\x7e\t\n\r\v\f]")
 _TOKEN = re.compile(r"\S+")
-
-
-class _TruncatedGzip(Exception):
-    """A gzip stream ended early or is corrupt; carries the text decoded so far."""
-
-    def __init__(self, text: str, error: Exception):
-        super().__init__(str(error))
-        self.text = text
-        self.error = error
-
-
-def _read_text(path: Path) -> str:
-    """The text of ``path``, gunzipped when it starts with the gzip magic (whatever its
-    suffix), decoded as ASCII with non-ASCII bytes replaced by U+FFFD.
-
-    Raises:
-        DataFormatError: the path is a directory.
-        _TruncatedGzip: the gzip stream is truncated or corrupt.
-    """
-    try:
-        with open(path, "rb") as handle:
-            data = handle.read()
-    except IsADirectoryError:
-        raise DataFormatError(path, None, "is a directory, not a data file") from None
-    if data[:2] != _GZIP_MAGIC:
-        return data.decode("ascii", errors="replace")
-    chunks: list[bytes] = []
-    try:
-        with gzip.GzipFile(fileobj=io.BytesIO(data)) as stream:
-            while chunk := stream.read(1 << 20):
-                chunks.append(chunk)
-    except (EOFError, OSError, zlib.error) as error:
-        raise _TruncatedGzip(b"".join(chunks).decode("ascii", errors="replace"), error) from None
-    return b"".join(chunks).decode("ascii", errors="replace")
-
-
-def _gzip_error(path: Path, truncated: _TruncatedGzip, unit: str, complete: int, line: int) -> DataFormatError:
-    error = truncated.error
-    return DataFormatError(
-        path, line,
-        f"gzip stream is truncated or corrupt after {complete} complete {unit} "
-        f"({type(error).__name__}: {error}); re-download the file",
-    )
-
-
-def _first_unprintable(path: Path, text: str) -> None:
-    match = _UNPRINTABLE.search(text)
-    if match is not None:
-        line = text.count("\n", 0, match.start()) + 1
-        raise DataFormatError(path, line, f"unexpected character {match.group()!r} (not printable ASCII)")
 
 
 def _parse_floats(words: list[str]) -> tuple[np.ndarray | None, int | None]:
@@ -308,12 +252,8 @@ def _is_float(word: str) -> bool:
 
 def _read_records(path: Path, n_columns: int, what: str) -> tuple[np.ndarray, np.ndarray]:
     """Parse a line-per-record numeric table; ``(table (N, n_columns), line numbers (N,))``."""
-    try:
-        text = _read_text(path)
-    except _TruncatedGzip as truncated:
-        complete = truncated.text.count("\n")
-        raise _gzip_error(path, truncated, "lines", complete, complete + 1) from None
-    _first_unprintable(path, text)
+    text = read_text(path)
+    check_printable(path, text)
     words: list[str] = []
     line_numbers: list[int] = []
     for number, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"), start=1):
@@ -385,41 +325,6 @@ def _check_increasing(path: Path, times: np.ndarray, strict: bool, lines: np.nda
         )
 
 
-def _load_npz(path: Path, names: list[str]) -> dict[str, np.ndarray]:
-    """The named arrays of an ``.npz`` archive as 1-D float64 (or as stored, for 2-D),
-    each checked to be numeric and finite; anything else is a :class:`DataFormatError`."""
-    # A damaged archive fails deep inside zipfile/zlib/NumPy with many exception types
-    # (BadZipFile, zlib.error, EOFError, NotImplementedError for a garbled version
-    # field, ValueError for a bad array header ...): every one means "unreadable".
-    try:
-        archive = np.load(path, allow_pickle=False)
-    except IsADirectoryError:
-        raise DataFormatError(path, None, "is a directory, not a data file") from None
-    except FileNotFoundError:
-        raise
-    except Exception as error:  # noqa: BLE001 (see above)
-        raise DataFormatError(path, None, f"not a readable .npz archive ({type(error).__name__}: {error})") from None
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise DataFormatError(path, None, "holds a single array, not an .npz archive of named arrays")
-    arrays = {}
-    with archive:
-        for name in names:
-            if name not in archive.files:
-                raise DataFormatError(path, None, f"missing array {name!r} (has {sorted(archive.files)})")
-            try:
-                array = np.asarray(archive[name])
-            except Exception as error:  # noqa: BLE001 (see above)
-                raise DataFormatError(
-                    path, None, f"array {name!r} is unreadable ({type(error).__name__}: {error})"
-                ) from None
-            if array.dtype.kind not in "iuf":
-                raise DataFormatError(path, None, f"array {name!r} has dtype {array.dtype}, not numbers")
-            if array.size == 0:
-                raise DataFormatError(path, None, f"array {name!r} is empty: no records")
-            arrays[name] = array
-    return arrays
-
-
 def _finite_columns(path: Path, **columns: np.ndarray) -> None:
     """Raise naming the first record of any column that is not finite."""
     for name, values in columns.items():
@@ -481,7 +386,7 @@ def _load_timed_table(
         raise ValueError(f"release must be 'mat' or 'ascii', got {release!r}")
     file = _locate(default[release], path)
     if file.suffix == ".npz":
-        arrays = _load_npz(file, list(npz_names))
+        arrays = load_npz(file, list(npz_names))
         columns = {n: arrays[n].reshape(-1).astype(np.float64) for n in npz_names}
         _same_length(file, **columns)
         _finite_columns(file, **columns)
@@ -557,7 +462,7 @@ def load_laser(path: os.PathLike | str | None = None) -> LaserScans:
     """
     file = _locate(("acfr_ascii", "laser_acfr_ascii.npz"), path)
     if file.suffix == ".npz":
-        arrays = _load_npz(file, ["time_s", "ranges_m"])
+        arrays = load_npz(file, ["time_s", "ranges_m"])
         times = arrays["time_s"].reshape(-1).astype(np.float64)
         ranges = arrays["ranges_m"].astype(np.float64)
         if ranges.ndim != 2 or ranges.shape != (times.shape[0], N_BEAMS):
@@ -586,13 +491,13 @@ def read_laser_text(path: os.PathLike | str) -> tuple[np.ndarray, np.ndarray]:
 
 def _read_laser_text(path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     record = 1 + N_BEAMS
-    try:
-        text = _read_text(path)
-    except _TruncatedGzip as truncated:
-        complete = len(truncated.text.split()) // record
-        line = truncated.text.count("\n") + 1
-        raise _gzip_error(path, truncated, f"records (scans) of {record} numbers", complete, line) from None
-    _first_unprintable(path, text)
+
+    def complete_records(partial: bytes) -> tuple[str, int, int]:
+        partial_text = partial.decode("ascii", errors="replace")
+        return f"records (scans) of {record} numbers", len(partial_text.split()) // record, partial_text.count("\n") + 1
+
+    text = read_text(path, progress=complete_records)
+    check_printable(path, text)
 
     def where(index: int) -> tuple[int, str]:
         match = next(m for i, m in enumerate(_TOKEN.finditer(text)) if i == index)

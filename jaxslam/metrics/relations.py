@@ -37,7 +37,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxslam.datasets.paths import DataFormatError, find, numeric_rows
+from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.reader import numeric_rows
 from jaxslam.metrics.trajectory_io import se2_between
 
 __all__ = [

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from jaxslam.datasets import carmen
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
+from jaxslam.datasets.reader import read_bytes
 from tests.datasets.test_carmen import _corrupted_log
 
 
@@ -47,7 +48,7 @@ def test_bulk_reader_equals_line_reader_on_real_logs(name):
         path = carmen.find(name, *carmen.DATASET_LOGS[name][:2])
     except DatasetNotFoundError as error:
         pytest.skip(str(error))
-    text = carmen._read_bytes(path)
+    text = read_bytes(path)
     assert carmen._read_lines_fast(text, None, 1.0) is not None  # the bulk path is taken
     (fast, _), (slow, _) = _load(name, False), _load(name, True)
     _assert_same(fast, slow)
