@@ -62,12 +62,11 @@ from typing import Any
 import numpy as np
 
 from jaxslam.datasets.geometry import se2_between, wrap_angle
-from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.paths import DataFormatError
 from jaxslam.datasets.reader import read_bytes
 
 __all__ = [
     "CarmenLog",
-    "DATASET_LOGS",
     "DEFAULT_FLASER_MAX_RANGE",
     "detect_no_return",
     "guess_angular_resolution",
@@ -974,57 +973,32 @@ def select_keyframes(
     return np.array(keyframes, dtype=np.int64)
 
 
-# name -> (folder, file, load_carmen keyword defaults). No per-log range limits: the
-# "no return" piles of Killian, Acapulco, FHW, Infinite Corridor and Orebro (about
-# 51.1 m and 32.76 m) are found by detect_no_return, for a path as for a name.
-DATASET_LOGS: dict[str, tuple[str, str, dict[str, Any]]] = {
-    "intel": ("carmen_raw", "intel.clf.gz", {}),
-    "fr079": ("carmen_raw", "fr079.clf.gz", {}),
-    "mit-csail": ("carmen_raw", "mit-csail.clf.gz", {}),
-    "fr-clinic": (
-        "carmen_raw",
-        "fr-clinic_robotlaser.clf.gz",
-        {"mixed_geometry": "pad", "max_range": DEFAULT_FLASER_MAX_RANGE},
-    ),
-    "mit-killian": ("carmen_raw", "mit-killian_reconstructed.clf.gz", {}),
-    "mrpt-sena": ("mrpt", "2006-01ENE-21-SENA_Telecom_Faculty_one_loop_only.clf.gz", {}),
-    "mrpt-localization-demo": ("mrpt", "localization_demo.clf.gz", {}),
-    "mrpt-ual": ("mrpt", "ual_dataset_2014_05_23_2dlaser_odo.clf.gz", {}),
-}
-for _place in (
-    "acapulco belgioioso csail edmonton fhw freiburg-079 freiburg-101 freiburg-campus "
-    "infinite-corridor intel orebro seattle"
-).split():
-    # Both pose triples of a corrected FLASER line hold the corrected laser pose.
-    DATASET_LOGS[f"{_place}-corrected"] = (
-        "carmen_gmapping_corrected",
-        f"{_place}-corrected.log.gz",
-        {"laser_offset": (0.0, 0.0, 0.0)},
-    )
-DATASET_LOGS["fr079-corrected"] = DATASET_LOGS["freiburg-079-corrected"]
-DATASET_LOGS["mit-csail-corrected"] = DATASET_LOGS["csail-corrected"]
-
-
 def load_dataset_log(name: os.PathLike | str, **options: Any) -> CarmenLog:
-    """Load a known CARMEN log by name, or any CARMEN log by path.
+    """Load a registered CARMEN log by name, or any CARMEN log by path.
 
-    Names: ``intel``, ``fr079``, ``mit-csail``, ``fr-clinic``, ``mit-killian`` (raw
-    logs in ``carmen_raw/``), ``<place>-corrected`` (GMapping-corrected logs in
+    Names are those of :mod:`jaxslam.datasets.registry` with a CARMEN loader:
+    ``intel``, ``fr079``, ``mit-csail``, ``fr-clinic``, ``mit-killian`` (raw logs in
+    ``carmen_raw/``), ``<place>-corrected`` (GMapping-corrected logs in
     ``carmen_gmapping_corrected/``, with ``laser_offset`` zero because their poses are
-    laser poses), and ``mrpt-sena``, ``mrpt-localization-demo``, ``mrpt-ual``. See
-    :data:`DATASET_LOGS` for the per-log defaults.
+    laser poses), and ``mrpt-sena``, ``mrpt-localization-demo``, ``mrpt-ual``; each
+    entry's ``options`` are its reading defaults.
 
     Args:
         name: a name above, or a path to a log file.
         **options: keyword arguments for :func:`load_carmen`; they override the
             per-log defaults.
     """
+    from jaxslam.datasets.registry import DATASETS, lookup
+
     key = str(name)
-    if key in DATASET_LOGS:
-        folder, filename, defaults = DATASET_LOGS[key]
-        return load_carmen(find(key, folder, filename), **{**defaults, **options})
+    try:
+        info = lookup(key)
+    except KeyError:
+        info = None
+    if info is not None and info.loader == "carmen":
+        return info.load(**options)
     path = Path(name)
     if path.is_file():
         return load_carmen(path, **options)
-    known = ", ".join(sorted(DATASET_LOGS))
+    known = ", ".join(sorted(n for n, i in DATASETS.items() if i.loader == "carmen"))
     raise FileNotFoundError(f"{key!r} is neither a known CARMEN log ({known}) nor a file")

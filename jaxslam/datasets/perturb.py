@@ -73,8 +73,9 @@ from pathlib import Path
 import numpy as np
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, wrap_angle
-from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.paths import DataFormatError
 from jaxslam.datasets.reader import read_bytes
+from jaxslam.datasets.registry import for_file, lookup
 
 __all__ = [
     "CORRECTED_LOGS",
@@ -91,20 +92,20 @@ __all__ = [
 ]
 
 CORRECTED_LOGS = {
-    "acapulco": "acapulco-corrected.log.gz",
-    "belgioioso": "belgioioso-corrected.log.gz",
-    "csail": "csail-corrected.log.gz",
-    "edmonton": "edmonton-corrected.log.gz",
-    "fhw": "fhw-corrected.log.gz",
-    "fr079": "freiburg-079-corrected.log.gz",
-    "fr101": "freiburg-101-corrected.log.gz",
-    "fr-campus": "freiburg-campus-corrected.log.gz",
-    "infinite-corridor": "infinite-corridor-corrected.log.gz",
-    "intel": "intel-corrected.log.gz",
-    "orebro": "orebro-corrected.log.gz",
-    "seattle": "seattle-corrected.log.gz",
+    "acapulco": "acapulco-corrected",
+    "belgioioso": "belgioioso-corrected",
+    "csail": "csail-corrected",
+    "edmonton": "edmonton-corrected",
+    "fhw": "fhw-corrected",
+    "fr079": "freiburg-079-corrected",
+    "fr101": "freiburg-101-corrected",
+    "fr-campus": "freiburg-campus-corrected",
+    "infinite-corridor": "infinite-corridor-corrected",
+    "intel": "intel-corrected",
+    "orebro": "orebro-corrected",
+    "seattle": "seattle-corrected",
 }
-"""Short name -> file in ``carmen_gmapping_corrected/``."""
+"""Short name -> the corrected log's name in :mod:`jaxslam.datasets.registry`."""
 
 DRIFT_RADIUS = 0.3
 """Metres of drift-process "distance" per radian turned in place (``w`` above)."""
@@ -220,7 +221,7 @@ class PerturbedLog:
 
 def _resolve(name_or_path: os.PathLike | str) -> Path:
     if str(name_or_path) in CORRECTED_LOGS:
-        return find(str(name_or_path), "carmen_gmapping_corrected", CORRECTED_LOGS[str(name_or_path)])
+        return lookup(CORRECTED_LOGS[str(name_or_path)]).paths()[0]
     path = Path(name_or_path)
     if not path.exists():
         raise FileNotFoundError(
@@ -233,23 +234,22 @@ def load_reference_log(name_or_path: os.PathLike | str) -> ReferenceLog:
     """Read a GMapping-corrected log: reference poses, stamps and range text.
 
     The log is parsed by :func:`jaxslam.datasets.carmen.load_carmen` (its errors name
-    the file and line), with the reading options of
-    :func:`jaxslam.datasets.carmen.load_dataset_log` when the file is one it knows; the range tokens are then taken verbatim from the scan lines
-    it reports. Only FLASER logs are accepted (the corrected logs are FLASER).
+    the file and line), with the reading options of its
+    :mod:`~jaxslam.datasets.registry` entry when the file is one it knows; the range
+    tokens are then taken verbatim from the scan lines it reports. Only FLASER logs are accepted (the corrected logs are FLASER).
 
     Raises:
         DataFormatError: the log is not a FLASER log, or a scan line disagrees with
             the parsed scan.
     """
-    from jaxslam.datasets.carmen import DATASET_LOGS, load_carmen, load_dataset_log
+    from jaxslam.datasets.carmen import load_carmen
 
     path = _resolve(name_or_path)
     # Corrected logs may have stamps going back arbitrarily (infinite-corridor);
-    # they are replaced below, so accept any step here. A file the reader knows by
-    # name gets its reading options (e.g. the range limit below a no-return pile).
-    stem = path.name.split(".")[0]
-    known = stem in DATASET_LOGS and Path(DATASET_LOGS[stem][1]).name == path.name
-    log = load_dataset_log(stem, max_backstep=np.inf) if known else load_carmen(path, max_backstep=np.inf)
+    # they are replaced below, so accept any step here. A file the registry knows
+    # gets its reading options (e.g. the zero laser offset of a corrected log).
+    info = for_file(path)
+    log = load_carmen(path, **{**(info.options if info is not None else {}), "max_backstep": np.inf})
     if log.message != "FLASER":
         raise DataFormatError(path, None, f"expected a FLASER log, got {log.message}")
     raw = read_bytes(path, "CARMEN log")

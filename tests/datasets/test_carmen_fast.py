@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from jaxslam.datasets import carmen
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
 from jaxslam.datasets.reader import read_bytes
+from jaxslam.datasets.registry import lookup
 from tests.datasets.test_carmen import _corrupted_log
 
 
@@ -45,7 +46,7 @@ def _assert_same(fast, slow) -> None:
 @pytest.mark.parametrize("name", ["intel", "mit-csail", "intel-corrected", "orebro-corrected"])
 def test_bulk_reader_equals_line_reader_on_real_logs(name):
     try:
-        path = carmen.find(name, *carmen.DATASET_LOGS[name][:2])
+        path = lookup(name).paths()[0]
     except DatasetNotFoundError as error:
         pytest.skip(str(error))
     text = read_bytes(path)
