@@ -52,9 +52,6 @@ def resolve_dataset(dataset: str | None, algorithm: str | None) -> tuple[Dataset
     return info, None, info.kind
 
 
-# --------------------------------------------------------------------------- landmark
-
-
 def param_fields(algorithm: str) -> dict[str, Any]:
     """Each ``Params`` field of the algorithm with its default (scalars as floats)."""
     if _kind_of(algorithm) == "landmark":
@@ -86,6 +83,9 @@ def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
             raise RunError(f"--set {name}: {algorithm} has no parameter {name!r}; numeric parameters: {', '.join(scalar)}")
         if not isinstance(default, (int, float)):
             raise RunError(f"--set {name}: parameter {name!r} is not a single number and cannot be set here")
+
+
+# --------------------------------------------------------------------------- landmark
 
 
 def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,

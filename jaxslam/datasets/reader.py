@@ -13,8 +13,11 @@ problem:
   that are ASCII by definition);
 * an ``.npz`` archive that is unreadable, holds a single array, lacks an array, or
   holds an empty or non-numeric one (:func:`load_npz`);
-* in a whitespace-separated numeric table (:func:`numeric_rows`): a row with another
-  number of fields, a field that is not a number or not finite.
+* in a whitespace-separated numeric table (:func:`numeric_rows`, or the stricter
+  :func:`read_table`, which also refuses ``1_000`` and unprintable characters): a row
+  with another number of fields, a field that is not a number or not finite;
+* columns that are not finite, differ in length, or times that go backwards
+  (:func:`finite_columns`, :func:`same_length`, :func:`check_increasing`).
 
 Text is decoded as ASCII with every other byte replaced by U+FFFD, so a stray byte
 shows up as what it is rather than as a decoding traceback. A missing file raises
@@ -171,3 +174,117 @@ def load_npz(path: os.PathLike | str, names: list[str]) -> dict[str, np.ndarray]
                 raise DataFormatError(path, None, f"array {name!r} is empty: no records")
             arrays[name] = array
     return arrays
+
+
+def parse_floats(words: list[str]) -> tuple[np.ndarray | None, int | None]:
+    """``(values, None)``, or ``(None, index of the first word that is not a number)``.
+
+    Python's and NumPy's float parsers accept ``1_000``; a data file never means that,
+    so words with an underscore are refused too.
+    """
+    try:
+        values = np.array(words, dtype=np.float64)
+    except ValueError:
+        values = None
+    if values is not None and not any("_" in word for word in words):
+        return values, None
+    bad = next(i for i, word in enumerate(words) if "_" in word or not _is_float(word))
+    return None, bad
+
+
+def _is_float(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
+
+
+def read_records(path: Path, n_columns: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Parse a line-per-record numeric table; ``(table (N, n_columns), line numbers (N,))``."""
+    text = read_text(path)
+    check_printable(path, text)
+    words: list[str] = []
+    line_numbers: list[int] = []
+    for number, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"), start=1):
+        parts = line.split()
+        if not parts:
+            continue
+        if len(parts) != n_columns:
+            raise DataFormatError(
+                path, number, f"expected {n_columns} numbers ({what}), found {len(parts)}: {line.strip()[:80]!r}"
+            )
+        words.extend(parts)
+        line_numbers.append(number)
+    if not line_numbers:
+        raise DataFormatError(path, None, f"no records ({what})")
+    lines = np.asarray(line_numbers, dtype=np.int64)
+    values, bad = parse_floats(words)
+    if values is None:
+        raise DataFormatError(
+            path, int(lines[bad // n_columns]),
+            f"{words[bad][:40]!r} is not a number (field {bad % n_columns + 1} of {n_columns}: {what})",
+        )
+    finite = np.isfinite(values)
+    if not finite.all():
+        bad = int(np.argmin(finite))
+        raise DataFormatError(
+            path, int(lines[bad // n_columns]),
+            f"non-finite value {words[bad][:40]!r} (field {bad % n_columns + 1} of {n_columns}: {what})",
+        )
+    return values.reshape(-1, n_columns), lines
+
+
+def read_table(path: os.PathLike | str, n_columns: int, what: str) -> np.ndarray:
+    """Read a whitespace-separated numeric table, one record per line.
+
+    Blank lines are skipped; LF, CRLF and CR line ends are accepted; a gzip stream is
+    recognised by its first bytes. Every problem (wrong column count, a word that is not
+    a number, a non-finite value, a character that is not printable ASCII, a truncated
+    or corrupt gzip stream, no records at all) raises :class:`DataFormatError` naming
+    the file and line.
+
+    Args:
+        path: the file.
+        n_columns: the number of numbers each line must hold.
+        what: the column names, for the error message.
+
+    Returns:
+        (N, n_columns) float64.
+    """
+    return read_records(Path(path), n_columns, what)[0]
+
+
+def _record_label(lines: np.ndarray | None, k: int) -> tuple[int | None, str]:
+    """Line number of record ``k`` (text files) or ``None`` and a record label (arrays)."""
+    if lines is None:
+        return None, f"record {k + 1}: "
+    return int(lines[k]), ""
+
+
+def check_increasing(path: Path, times: np.ndarray, strict: bool, lines: np.ndarray | None = None) -> None:
+    """Raise if ``times`` ever decreases (or repeats, when ``strict``); names the line or record."""
+    steps = np.diff(times)
+    bad = np.nonzero(steps <= 0 if strict else steps < 0)[0]
+    if bad.size:
+        k = int(bad[0]) + 1
+        line, label = _record_label(lines, k)
+        order = "increase" if strict else "not decrease"
+        raise DataFormatError(
+            path, line, f"{label}time {times[k]:.3f} s after {times[k - 1]:.3f} s: times must {order}"
+        )
+
+
+def finite_columns(path: Path, **columns: np.ndarray) -> None:
+    """Raise naming the first record of any column that is not finite."""
+    for name, values in columns.items():
+        finite = np.isfinite(values)
+        if not finite.all():
+            k = int(np.argmin(finite.reshape(finite.shape[0], -1).all(axis=1)))
+            raise DataFormatError(path, None, f"record {k + 1}: {name} is not finite")
+
+
+def same_length(path: Path, **columns: np.ndarray) -> None:
+    lengths = {name: int(values.shape[0]) for name, values in columns.items()}
+    if len(set(lengths.values())) > 1:
+        raise DataFormatError(path, None, f"arrays differ in length: {lengths}")
