@@ -89,13 +89,13 @@ def run_jaxslam(case: str, cache: Path, out: Path, timeout: float) -> dict:
 def run_gmapping_case(case: str, workdir: Path, timeout: float) -> dict:
     from gmapping_cpp import run_gmapping
 
-    from jaxslam.datasets.carmen import DATASET_LOGS, find, load_dataset_log
+    from jaxslam.datasets.registry import lookup
 
     _, _, particles, log_name = CASES[case]
-    folder, filename, _ = DATASET_LOGS[log_name]
-    log = load_dataset_log(log_name)
+    info = lookup(log_name)
+    log = info.load()
     load_before = os.getloadavg()[0]
-    run = run_gmapping(find(log_name, folder, filename), particles=particles, seed=0, log=log,
+    run = run_gmapping(info.paths()[0], particles=particles, seed=0, log=log,
                        max_range=log.max_range if log.no_return.get("detected") else None,
                        nice=10, timeout=timeout, workdir=workdir)
     row = {"gmapping_process_s": run.wall_s, "gmapping_slam_s": run.info.get("slam_s"),

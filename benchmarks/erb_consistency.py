@@ -46,7 +46,7 @@ from jaxslam.driver import scan_steps  # noqa: E402
 from jaxslam.feature import filter as feature_filter  # noqa: E402
 from jaxslam.feature.experiment import ALGORITHMS, params_for  # noqa: E402
 from jaxslam.feature.params import Config  # noqa: E402
-from jaxslam.metrics.nees import chi2_quantile, pose_nees  # noqa: E402
+from jaxslam.metrics.nees import nees_band, pose_nees  # noqa: E402
 from jaxslam.metrics.stats import mean_ci  # noqa: E402
 
 
@@ -122,8 +122,7 @@ def main() -> None:
               for f, dt in (("controls", jnp.float32), ("observations", jnp.float32), ("obs_mask", bool))]
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
     truth = np.stack([q.true_poses for q in sequences])
-    hi_single = chi2_quantile(0.975, 3)
-    lo_single = chi2_quantile(0.025, 3)
+    lo_single, hi_single = nees_band(3)
 
     rows, curves = [], {}
     for mode in args.modes:
@@ -171,7 +170,7 @@ def main() -> None:
                 write_json(args.name, dict(dataset="landmark-sim", steps=args.steps, seeds=seeds, runs=rows,
                                            truncated_sequences=truncated, complete=False))
     total = len(seeds) * args.steps
-    band_mean = [chi2_quantile(0.025, 3 * total) / total, chi2_quantile(0.975, 3 * total) / total]
+    band_mean = [bound / total for bound in nees_band(3 * total)]
     path = write_json(args.name, dict(
         dataset="landmark-sim", steps=args.steps, seeds=seeds, runs=rows, truncated_sequences=truncated,
         band_single=[lo_single, hi_single], band_mean_independent=band_mean, lag=args.lag, complete=True,

@@ -11,14 +11,10 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
-ALGORITHMS = {
-    "erb-upf": "landmark",
-    "rb-upf": "landmark",
-    "srupf-gm": "laser",
-    "srupf-gm-npc": "laser",
-    "gmapping": "laser",
-}
+from jaxslam.datasets.registry import ALGORITHMS
+from jaxslam.outputs import json_default
 
 EPILOG = """examples:
   jaxslam run --out runs/demo                      simulated landmark world, ERB, 100 particles
@@ -191,7 +187,6 @@ def cmd_datasets(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from jaxslam import runs
     from jaxslam.cache import ENV_VAR as CACHE_ENV_VAR
     from jaxslam.cache import enable_compilation_cache
 
@@ -203,17 +198,60 @@ def cmd_run(args) -> int:
                 raise CliError(str(err)) from None
             print(f"jaxslam run: warning: running without the compilation cache: {err}", file=sys.stderr)
 
-    summary = runs.run_from_args(args)
+    summary = run_from_args(args)
     if summary is not None:
-        print(json.dumps(summary, indent=2, default=runs._json_default))
+        print(json.dumps(summary, indent=2, default=json_default))
     return 0
+
+
+def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
+    """``jaxslam run``: the parsed arguments as a call of :func:`jaxslam.runs.run`
+    (``--list-params`` prints the parameters instead; ``--resume`` repeats the
+    arguments saved in the folder's ``run.json``)."""
+    from jaxslam import runs
+    from jaxslam.datasets.paths import DataFormatError
+    from jaxslam.datasets.registry import DEFAULT_ALGORITHM
+
+    if args.list_params:
+        algorithm = args.algorithm or DEFAULT_ALGORITHM[runs.resolve_dataset(args.dataset, None)[2]]
+        for name, default in runs.param_fields(algorithm).items():
+            print(f"{name:24s} {default!r}")
+        return None
+    if args.resume is not None:
+        saved = args.resume / "run.json"
+        if not saved.exists():
+            raise runs.RunError(
+                f"--resume {str(args.resume)!r}: no run.json there; is it a `jaxslam run` output folder?")
+        try:
+            run_args = json.loads(saved.read_text())
+        except json.JSONDecodeError as err:
+            raise DataFormatError(saved, err.lineno, f"not valid JSON: {err.msg}") from None
+        return runs.run(out=args.resume, progress=not args.no_progress, plots=not args.no_plots,
+                        checkpoint_every=args.checkpoint_every, resume=True, **run_args)
+    if args.out is None:
+        raise runs.RunError("--out is required (the folder the outputs go to)")
+    overrides = dict(args.overrides or [])
+    if getattr(args, "params", None) is not None:
+        from jaxslam.calibrate.cli import load_params_file
+
+        overrides = {**load_params_file(args.params), **overrides}
+    return runs.run(
+        out=args.out, dataset=args.dataset, algorithm=args.algorithm, particles=args.particles, seed=args.seed,
+        max_steps=args.max_steps, overrides=overrides, progress=not args.no_progress,
+        chunk=args.chunk, float64=args.float64, plots=not args.no_plots, checkpoint_every=args.checkpoint_every,
+        keyframes={"linear": args.linear_update, "angular": args.angular_update, "temporal": args.temporal_update},
+        bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,
+             "laser_offset": args.laser_mount},
+        rerun=args.rerun, rerun_spawn=args.rerun_spawn,
+        max_range=args.max_range,
+    )
 
 
 def cmd_evaluate(args) -> int:
     from jaxslam import runs
 
     scores = runs.evaluate(args.trajectory, relations=args.relations, gps=args.gps)
-    text = json.dumps(scores, indent=2, default=runs._json_default)
+    text = json.dumps(scores, indent=2, default=json_default)
     print(text)
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -222,18 +260,17 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from jaxslam import runs
+    from jaxslam.outputs import replot
 
-    for path in runs.replot(args.folder):
+    for path in replot(args.folder):
         print(path)
     return 0
 
 
 def cmd_calibrate(args) -> int:
-    from jaxslam import runs
     from jaxslam.calibrate.cli import run as run_calibrate
 
-    print(json.dumps(run_calibrate(args), indent=2, default=runs._json_default))
+    print(json.dumps(run_calibrate(args), indent=2, default=json_default))
     return 0
 
 

@@ -1,36 +1,28 @@
-"""What ``jaxslam run`` / ``evaluate`` / ``plot`` do, as functions a script can call.
+"""What ``jaxslam run`` / ``evaluate`` do, as functions a script can call.
 
-``run(...)`` resolves a dataset (a name, a path to a CARMEN log, or a built-in
-simulator), runs the chosen filter, scores it where a reference exists (GPS for
-Victoria Park, relations for the CARMEN benchmark logs, ground truth for the
-simulators) and writes an output folder:
-
-* ``summary.json`` — what was run (algorithm, dataset, particles, seed, steps, ...),
-  timings (``wall_s`` after compilation, ``compile_s`` apart), resamplings, scores;
-* ``trajectory.tum`` — the estimate in the TUM format;
-* landmark runs: ``landmarks.csv`` (id, x, y, covariance) and ``trajectory.png``
-  (trajectory, reference, landmarks with 3-sigma ellipses);
-* grid runs: ``map.pgm`` + ``map.yaml`` (ROS map_server convention) and ``map.png``;
-* ``health.png`` — ESS and resampling over time; ``arrays.npz`` — the data the
-  figures are drawn from, so ``jaxslam plot`` can redraw them.
+``run(...)`` resolves a dataset (a name in :mod:`jaxslam.datasets.registry`, a path to
+a CARMEN log or a ROS bag, or a built-in simulator), runs the chosen filter, scores it
+as the registry says (:mod:`jaxslam.metrics.scoring`: relations, GPS or ground truth)
+and writes an output folder (:mod:`jaxslam.outputs`): ``summary.json`` — what was run
+(algorithm, dataset, particles, seed, steps, ...), timings (``wall_s`` after
+compilation, ``compile_s`` apart), resamplings, scores — ``trajectory.tum``, the map or
+the landmarks, ``arrays.npz`` and the figures. The command line adapts its arguments
+to :func:`run` in :mod:`jaxslam.cli`.
 """
 
 from __future__ import annotations
 
-import csv
-import json
+import contextlib
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
-from jaxslam.datasets.registry import DatasetInfo, lookup
+from jaxslam.datasets.paths import DatasetNotFoundError
+from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
+from jaxslam.outputs import replot, write_json
 
-LANDMARK_ALGORITHMS = ("erb-upf", "rb-upf")
-GRID_ALGORITHMS = ("srupf-gm", "srupf-gm-npc", "gmapping")
-DEFAULT_ALGORITHM = {"landmark": "erb-upf", "laser": "srupf-gm"}
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
 
@@ -39,7 +31,7 @@ class RunError(ValueError):
 
 
 def _kind_of(algorithm: str) -> str:
-    return "landmark" if algorithm in LANDMARK_ALGORITHMS else "laser"
+    return ALGORITHMS[algorithm]
 
 
 def resolve_dataset(dataset: str | None, algorithm: str | None) -> tuple[DatasetInfo | None, Path | None, str]:
@@ -60,61 +52,7 @@ def resolve_dataset(dataset: str | None, algorithm: str | None) -> tuple[Dataset
     return info, None, info.kind
 
 
-def _json_default(value):
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return str(value)
-
-
-def write_json(path: Path, payload: dict) -> None:
-    """Write JSON atomically (temporary file, then rename)."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, default=_json_default) + "\n")
-    tmp.replace(path)
-
-
-def _overrides_dict(overrides) -> dict[str, float]:
-    return {name: value for name, value in (overrides or [])}
-
-
-# --------------------------------------------------------------------------- landmark
-
-
-def load_landmark_sequence(info: DatasetInfo, max_steps: int | None, seed: int):
-    """The sequence of a landmark dataset (the simulator draws its world from ``seed``),
-    cut to ``max_steps`` scans."""
-    if info.name == "sim-landmarks":
-        from jaxslam.datasets import landmark_sim
-
-        sequence = landmark_sim.simulate(seed=seed)
-    else:
-        from jaxslam.datasets import victoria_park
-
-        sequence = victoria_park.load_sequence(max_steps=max_steps)
-    if max_steps is not None:
-        sequence = _truncate(sequence, max_steps)
-    return sequence
-
-
-def _truncate(sequence, max_steps: int):
-    import dataclasses
-
-    t = sequence.times.shape[0]
-    if max_steps >= t:
-        return sequence
-    changes = {}
-    for field in dataclasses.fields(sequence):
-        value = getattr(sequence, field.name)
-        if isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == t and not field.name.startswith("gps"):
-            changes[field.name] = value[:max_steps]
-    return dataclasses.replace(sequence, **changes)
-
-
-def _param_fields(algorithm: str) -> dict[str, Any]:
+def param_fields(algorithm: str) -> dict[str, Any]:
     """Each ``Params`` field of the algorithm with its default (scalars as floats)."""
     if _kind_of(algorithm) == "landmark":
         from jaxslam.feature.params import Params
@@ -137,7 +75,7 @@ def _param_fields(algorithm: str) -> dict[str, Any]:
 
 
 def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
-    fields = _param_fields(algorithm)
+    fields = param_fields(algorithm)
     for name, _ in overrides.items():
         default = fields.get(name, KeyError)
         if default is KeyError:
@@ -147,13 +85,18 @@ def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
             raise RunError(f"--set {name}: parameter {name!r} is not a single number and cannot be set here")
 
 
-def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
+# --------------------------------------------------------------------------- landmark
+
+
+def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
                  checkpoint=None, viz=None):
+    """Run a landmark filter on ``info``'s sequence, score it, write its files; the summary."""
     from jaxslam.feature.experiment import run_landmark_slam
-    from jaxslam.metrics.trajectory_io import write_tum
+    from jaxslam.metrics.scoring import score_landmark_run
+    from jaxslam.outputs import write_landmark_outputs
 
     loading = time.perf_counter()
-    sequence = load_landmark_sequence(info, max_steps, seed)
+    sequence = info.load(seed=seed, max_steps=max_steps)
     live = {} if viz is None else {"callback": viz.landmark_callback(np.asarray(sequence.times))}
     load_s = time.perf_counter() - loading
     result = run_landmark_slam(
@@ -177,50 +120,14 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
         "num_invalid_controls", "num_invalid_observations", "num_nonfinite_particles",
         "num_rejected_landmarks", "num_cov_repairs") if name in result.info}
     summary["input_recovered"] = dict(getattr(sequence, "meta", {}).get("recovered", {}))
-    reference_xy = None
-    true_landmarks = None
-    if info.name == "victoria-park":
-        from jaxslam.metrics.gps import gps_error
-
-        scores = gps_error(result.times, result.trajectory[:, :2], sequence.gps_times, sequence.gps_xy)
-        summary.update({k: scores[k] for k in ("gps_mean_m", "gps_rms_m", "gps_max_m", "n_used", "n_skipped")})
-        summary["gps_alignment"] = {"rotation_rad": scores["rotation_rad"], "translation": scores["translation"]}
-        rot, trans = np.asarray(scores["rotation"]), np.asarray(scores["translation"])
-        reference_xy = (np.asarray(sequence.gps_xy) - trans) @ rot  # GPS mapped into the filter frame
-        reference_xy = reference_xy[np.asarray(scores["used"], bool)]
-        ref_label = "GPS (aligned)"
-    else:
-        errors = np.linalg.norm(result.trajectory[:, :2] - sequence.true_poses[:, :2], axis=1)
-        summary.update({"pos_err_mean_m": float(errors.mean()), "pos_err_rms_m": float(np.sqrt((errors**2).mean())),
-                        "pos_err_max_m": float(errors.max())})
-        try:
-            from jaxslam.metrics.nees import pose_nees
-
-            nees = pose_nees(result.trajectory, result.pose_covs, sequence.true_poses)
-            summary["nees_mean"] = float(np.nanmean(nees))
-            summary["nees_expected"] = 3.0
-        except ImportError:
-            pass
-        reference_xy = sequence.true_poses[:, :2]
-        true_landmarks = sequence.landmarks
-        ref_label = "ground truth"
+    scored = score_landmark_run(info, result, sequence)
+    summary.update(scored.scores)
     writing = time.perf_counter()
-    write_tum(out / "trajectory.tum", result.times, result.trajectory,
-              comment=f"jaxslam {algorithm} on {info.name}, {particles} particles, seed {seed}")
-    with open(out / "landmarks.csv", "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["id", "x_m", "y_m", "cov_xx", "cov_xy", "cov_yy"])
-        for i, (m, c) in enumerate(zip(result.landmark_means, result.landmark_covs)):
-            writer.writerow([i, f"{m[0]:.4f}", f"{m[1]:.4f}", f"{c[0, 0]:.6g}", f"{c[0, 1]:.6g}", f"{c[1, 1]:.6g}"])
-    np.savez_compressed(
-        out / "arrays.npz", kind="landmark", times=result.times, trajectory=result.trajectory,
-        landmark_means=result.landmark_means, landmark_covs=result.landmark_covs,
-        reference_xy=reference_xy if reference_xy is not None else np.zeros((0, 2)),
-        reference_label=ref_label,
-        true_landmarks=true_landmarks if true_landmarks is not None else np.zeros((0, 2)),
-        ess=result.info["ess"], resampled=result.info["resampled"], particles=particles,
-        weight_variance=result.info.get("weight_variance", np.zeros(0)),
-        title=f"{algorithm}, {info.name}, {particles} particles",
+    write_landmark_outputs(
+        out, result, title=f"{algorithm}, {info.name}, {particles} particles",
+        comment=f"jaxslam {algorithm} on {info.name}, {particles} particles, seed {seed}",
+        reference_xy=scored.reference_xy, reference_label=scored.reference_label,
+        true_landmarks=scored.true_landmarks,
     )
     summary["output_s"] = time.perf_counter() - writing
     return summary
@@ -229,26 +136,30 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 # --------------------------------------------------------------------------- grid
 
 
-def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots,
+def _load_log(info, path, seed, bag, max_range):
+    """The laser log of a registry entry, a ROS bag or a CARMEN log path."""
+    if path is not None and _is_bag(path):
+        from jaxslam.datasets.rosbag import load_rosbag
+
+        return load_rosbag(path, **(bag or {}))
+    options = {"max_range": max_range} if max_range is not None else {}
+    if info is not None:
+        return info.load(seed=seed, **options)
+    from jaxslam.datasets.carmen import load_carmen
+
+    return load_carmen(path, **options)
+
+
+def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
              checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None):
+    """Run a grid filter on a laser log, score it, write its files; the summary."""
     from jaxslam.grid import experiment as grid_experiment
-    from jaxslam.metrics.trajectory_io import write_tum
+    from jaxslam.metrics.scoring import score_grid_run
+    from jaxslam.outputs import write_grid_outputs, write_trajectory
 
     name = info.name if info is not None else str(path)
     loading = time.perf_counter()
-    if info is not None and info.name == "sim-laser":
-        from jaxslam.datasets import laser_sim
-
-        log = laser_sim.simulate(seed=seed)
-    elif path is not None and _is_bag(path):
-        from jaxslam.datasets.rosbag import load_rosbag
-
-        log = load_rosbag(path, **(bag or {}))
-    else:
-        from jaxslam.datasets.carmen import load_dataset_log
-
-        log = load_dataset_log(info.name if info is not None else str(path),
-                               **({"max_range": max_range} if max_range is not None else {}))
+    log = _load_log(info, path, seed, bag, max_range)
     load_s = time.perf_counter() - loading
     live = None
     if viz is not None:
@@ -276,30 +187,12 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     }
     if path is not None and _is_bag(path):
         summary["bag"] = dict(log.params)  # the topics and frames used
+    summary.update(score_grid_run(info, result, log))
     writing = time.perf_counter()
-    write_tum(out / "trajectory.tum", result.scan_times, result.trajectory,
-              comment=f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}")
-    output_s = time.perf_counter() - writing
-    relations = info.relations_path() if info is not None else None
-    if relations is not None:
-        from jaxslam.metrics.relations import load_relations, relations_metric
-
-        scores = relations_metric(load_relations(relations), result.scan_times, result.trajectory)
-        summary.update(scores)
-    if hasattr(log, "true_poses"):
-        errors = np.linalg.norm(result.trajectory[:, :2] - np.asarray(log.true_poses)[:, :2], axis=1)
-        summary.update({"pos_err_mean_m": float(errors.mean()), "pos_err_max_m": float(errors.max())})
-    from jaxslam.grid.export import save_map
-
-    writing = time.perf_counter()
-    save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
-    np.savez_compressed(
-        out / "arrays.npz", kind="laser", times=result.scan_times, trajectory=result.trajectory,
-        log_odds=result.map_log_odds, resolution=result.resolution, origin=np.asarray(result.origin),
-        ess=result.info["ess"], resampled=result.info["resampled"], particles=particles,
-        title=f"{algorithm}, {name}, {particles} particles",
-    )
-    summary["output_s"] = output_s + time.perf_counter() - writing
+    write_trajectory(out, result.scan_times, result.trajectory,
+                     comment=f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}")
+    write_grid_outputs(out, result, title=f"{algorithm}, {name}, {particles} particles")
+    summary["output_s"] = time.perf_counter() - writing
     return summary
 
 
@@ -393,6 +286,8 @@ def run(
     (:mod:`jaxslam.viz.rerun_log`; needs ``pip install "jaxslam[viz]"``).
     ``max_range`` (CARMEN logs) sets the range limit, in place of the logged one and
     of the "no return" sentinel detection (:func:`jaxslam.datasets.carmen.detect_no_return`).
+    ``float64`` runs the filter in double precision: JAX's 64-bit mode is switched on
+    for this run only (``jax.enable_x64``), the default float32 path never touches it.
     """
     import jax
     import jax.numpy as jnp
@@ -401,7 +296,7 @@ def run(
     algorithm = algorithm or DEFAULT_ALGORITHM[kind]
     if _kind_of(algorithm) != kind:
         name = info.name if info is not None else str(path)
-        choices = LANDMARK_ALGORITHMS if kind == "landmark" else GRID_ALGORITHMS
+        choices = algorithms(kind)
         raise RunError(f"algorithm {algorithm!r} needs {_kind_of(algorithm)} data but dataset {name!r} is "
                        f"{kind} data; use one of: {', '.join(choices)}")
     if info is not None and not info.simulated:
@@ -419,8 +314,6 @@ def run(
     if (rerun is not None or rerun_spawn) and (checkpoint_every is not None or resume):
         raise RunError("--rerun/--rerun-spawn cannot be combined with --checkpoint-every/--resume")
     particles = particles or DEFAULT_PARTICLES[kind]
-    if float64:
-        jax.config.update("jax_enable_x64", True)
     dtype = jnp.float64 if float64 else jnp.float32
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -452,7 +345,7 @@ def run(
 
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
-    args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype, plots)
+    args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype)
     if kind == "laser":
         args = (info, path) + args[1:]
     extra = {"keyframes": keyframes} if keyframes else {}
@@ -463,8 +356,9 @@ def run(
     viz = _open_viz(rerun, rerun_spawn, dataset_name)
     if viz is not None:
         extra["viz"] = viz
+    precision = jax.enable_x64(True) if float64 else contextlib.nullcontext()
     try:
-        with CompileCounter() as compilations:
+        with precision, CompileCounter() as compilations:
             summary = runner(*args, checkpoint=checkpoint, **extra)
     finally:
         if viz is not None:
@@ -486,42 +380,6 @@ def run(
     summary["total_s"] = time.time() - started
     write_json(out / "summary.json", summary)
     return summary
-
-
-def run_from_args(args) -> dict[str, Any] | None:
-    """The ``jaxslam run`` subcommand."""
-    if args.list_params:
-        algorithm = args.algorithm or DEFAULT_ALGORITHM[resolve_dataset(args.dataset, None)[2]]
-        for name, default in _param_fields(algorithm).items():
-            print(f"{name:24s} {default!r}")
-        return None
-    if args.resume is not None:
-        saved = args.resume / "run.json"
-        if not saved.exists():
-            raise RunError(f"--resume {str(args.resume)!r}: no run.json there; is it a `jaxslam run` output folder?")
-        try:
-            run_args = json.loads(saved.read_text())
-        except json.JSONDecodeError as err:
-            raise DataFormatError(saved, err.lineno, f"not valid JSON: {err.msg}") from None
-        return run(out=args.resume, progress=not args.no_progress, plots=not args.no_plots,
-                   checkpoint_every=args.checkpoint_every, resume=True, **run_args)
-    if args.out is None:
-        raise RunError("--out is required (the folder the outputs go to)")
-    overrides = _overrides_dict(args.overrides)
-    if getattr(args, "params", None) is not None:
-        from jaxslam.calibrate.cli import load_params_file
-
-        overrides = {**load_params_file(args.params), **overrides}
-    return run(
-        out=args.out, dataset=args.dataset, algorithm=args.algorithm, particles=args.particles, seed=args.seed,
-        max_steps=args.max_steps, overrides=overrides, progress=not args.no_progress,
-        chunk=args.chunk, float64=args.float64, plots=not args.no_plots, checkpoint_every=args.checkpoint_every,
-        keyframes={"linear": args.linear_update, "angular": args.angular_update, "temporal": args.temporal_update},
-        bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,
-             "laser_offset": args.laser_mount},
-        rerun=args.rerun, rerun_spawn=args.rerun_spawn,
-        max_range=args.max_range,
-    )
 
 
 def evaluate(trajectory: Path, relations: str | None = None, gps: str | None = None) -> dict[str, Any]:
@@ -547,42 +405,12 @@ def evaluate(trajectory: Path, relations: str | None = None, gps: str | None = N
         scores["relations_file"] = str(path)
         return scores
     info = lookup(gps)
-    if info.name != "victoria-park":
-        raise RunError(f"GPS scoring is available for victoria-park, not {info.name!r}")
+    if not info.gps:
+        with_gps = ", ".join(name for name, entry in DATASETS.items() if entry.gps)
+        raise RunError(f"GPS scoring is available for {with_gps}, not {info.name!r}")
     from jaxslam.datasets.victoria_park import load_gps
     from jaxslam.metrics.gps import gps_error
 
     fixes = load_gps()
     scores = gps_error(times, poses[:, :2], fixes.times, fixes.xy)
     return {k: v for k, v in scores.items() if k not in ("used", "errors_m")}
-
-
-def replot(folder: str | Path) -> list[Path]:
-    """Draw the figures of an output folder from its ``arrays.npz``."""
-    from jaxslam import plotting
-
-    folder = Path(folder)
-    arrays_path = folder / "arrays.npz"
-    if not arrays_path.exists():
-        raise DatasetNotFoundError(f"{str(arrays_path)!r} not found: is {str(folder)!r} a `jaxslam run` output folder?")
-    try:
-        data = np.load(arrays_path, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise DataFormatError(arrays_path, None, f"cannot read: {err}") from None
-    title = str(data["title"])
-    written = []
-    if str(data["kind"]) == "landmark":
-        fig = plotting.plot_landmark_slam(
-            data["trajectory"], data["landmark_means"], data["landmark_covs"],
-            reference_xy=data["reference_xy"], reference_label=str(data["reference_label"]),
-            true_landmarks=data["true_landmarks"], title=title,
-        )
-        written.append(plotting.save(fig, folder / "trajectory.png"))
-    else:
-        fig = plotting.plot_grid_map(data["log_odds"], float(data["resolution"]), data["origin"],
-                                     trajectory=data["trajectory"], title=title)
-        written.append(plotting.save(fig, folder / "map_trajectory.png"))
-    wv = data["weight_variance"] if "weight_variance" in data and data["weight_variance"].size else None
-    fig = plotting.plot_filter_health(data["ess"], data["resampled"], int(data["particles"]), wv, title=title)
-    written.append(plotting.save(fig, folder / "health.png"))
-    return written

@@ -130,7 +130,7 @@ def test_unusable_cache_folder(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
     args = cli.build_parser().parse_args(["run", "--out", str(tmp_path / "o"), "--list-params"])
     args.list_params = False
-    monkeypatch.setattr("jaxslam.runs.run_from_args", lambda _args: None)
+    monkeypatch.setattr("jaxslam.cli.run_from_args", lambda _args: None)
     assert cli.cmd_run(args) == 0
     assert "running without the compilation cache" in capsys.readouterr().err
     args.cache_dir = blocker / "sub"

@@ -199,3 +199,16 @@ def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypa
 def test_keyframe_thresholds_are_for_laser_data_only(capsys, tmp_path):
     assert run_cli("run", "--out", str(tmp_path / "o"), "--linear-update", "0.5") == 2
     assert "laser data only" in capsys.readouterr().err
+
+
+def test_float64_run_switches_x64_on_for_that_run_only(tmp_path):
+    import jax
+
+    from jaxslam import runs
+
+    before = jax.config.jax_enable_x64
+    summary = runs.run(out=tmp_path, algorithm="rb-upf", particles=2, max_steps=5, float64=True,
+                       progress=False, plots=False)
+    assert summary["dtype"] == "float64"
+    assert np.load(tmp_path / "arrays.npz")["trajectory"].dtype == np.float64
+    assert jax.config.jax_enable_x64 == before

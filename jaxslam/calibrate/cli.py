@@ -4,13 +4,15 @@ OUT/calibration.json`` runs with the result."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 from typing import Any
 
+from jaxslam.datasets.registry import ALGORITHMS, algorithms
 
-ALGORITHM_CHOICES = ("erb-upf", "rb-upf", "srupf-gm", "srupf-gm-npc", "gmapping")
-LANDMARK = ("erb-upf", "rb-upf")
+ALGORITHM_CHOICES = tuple(ALGORITHMS)
+LANDMARK = algorithms("landmark")
 
 
 def add_parser(sub, positive_int, nonneg_int) -> None:
@@ -38,7 +40,8 @@ def run(args) -> dict[str, Any]:
     import jax.numpy as jnp
 
     from jaxslam.calibrate.fit import calibrate
-    from jaxslam.runs import RunError, load_landmark_sequence, resolve_dataset, write_json
+    from jaxslam.outputs import write_json
+    from jaxslam.runs import RunError, resolve_dataset
 
     if args.algorithm not in LANDMARK:
         raise RunError(f"calibrate supports the landmark filters ({', '.join(LANDMARK)}) only; the grid filter "
@@ -48,16 +51,16 @@ def run(args) -> dict[str, Any]:
         raise RunError(f"calibrate supports landmark data only; {args.dataset!r} is {kind} data")
     if not info.simulated:
         info.paths()
-    if args.float64:
-        jax.config.update("jax_enable_x64", True)
-    sequence = load_landmark_sequence(info, args.window, args.seed)
+    sequence = info.load(seed=args.seed, max_steps=args.window)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    result = calibrate(
-        sequence, args.algorithm, particles=args.particles, filters=args.filters, steps=args.steps,
-        learning_rate=args.learning_rate, window=args.window, seed=args.seed,
-        dtype=jnp.float64 if args.float64 else jnp.float32,
-    )
+    # --float64: JAX's 64-bit mode for this calibration only
+    with jax.enable_x64(True) if args.float64 else contextlib.nullcontext():
+        result = calibrate(
+            sequence, args.algorithm, particles=args.particles, filters=args.filters, steps=args.steps,
+            learning_rate=args.learning_rate, window=args.window, seed=args.seed,
+            dtype=jnp.float64 if args.float64 else jnp.float32,
+        )
     payload = {"dataset": info.name, "algorithm": args.algorithm, "particles": args.particles, "seed": args.seed,
                **result.to_json()}
     write_json(out / "calibration.json", payload)

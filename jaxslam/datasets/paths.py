@@ -10,7 +10,6 @@ place that was searched, and how to point ``JAXSLAM_DATA`` at it.
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
@@ -30,37 +29,6 @@ class DataFormatError(ValueError):
         self.problem = problem
         where = f"{self.path}, line {line}" if line is not None else self.path
         super().__init__(f"{where}: {problem}")
-
-
-def numeric_rows(path: Path, fields: str, kind: str, commas: bool = False):
-    """Yield ``(line_number, values)`` for each row of a whitespace-separated text
-    table whose columns are named by ``fields`` (e.g. ``"t1 t2 x y z roll pitch yaw"``).
-
-    Blank lines and lines starting with ``#`` are skipped; ``commas`` also accepts
-    commas as separators. A directory, a row with another number of fields, a field
-    that is not a number or not finite raise :class:`DataFormatError` naming the file
-    and line; ``kind`` names the expected file type in the directory message.
-    """
-    names = fields.split()
-    try:
-        text = Path(path).read_bytes().decode("utf-8", "replace")
-    except IsADirectoryError as error:
-        raise DataFormatError(path, None, f"is a directory, not a {kind}") from error
-    for line_number, line in enumerate(text.split("\n"), start=1):
-        tokens = (line.replace(",", " ") if commas else line).split()
-        if not tokens or tokens[0].startswith("#"):
-            continue
-        if len(tokens) != len(names):
-            raise DataFormatError(
-                path, line_number, f"expected {len(names)} fields '{fields}', got {len(tokens)}"
-            )
-        try:
-            values = tuple(float(token) for token in tokens)
-        except ValueError:
-            raise DataFormatError(path, line_number, "a field is not a number") from None
-        if not all(math.isfinite(value) for value in values):
-            raise DataFormatError(path, line_number, "a field is not finite")
-        yield line_number, values
 
 
 def candidate_roots() -> list[Path]:

@@ -55,14 +55,16 @@ count or geometry, a zero header stamp, a laser frame with no transform to the b
 frame, and unreadable bags raise :class:`DataFormatError` naming the bag, the topic
 and the message index. With ``on_error="skip"`` a bad scan message is dropped and
 counted instead (``stats["skipped_messages"]``, ``stats["skipped:<reason>"]``).
+
+Layout: the message readers and the time, heading and geometry helpers are in
+:mod:`jaxslam.datasets.rosbag_messages`, :func:`write_rosbag` in
+:mod:`jaxslam.datasets.rosbag_write`; both are re-exported here.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
-from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -70,6 +72,23 @@ import numpy as np
 
 from jaxslam.datasets.carmen import CarmenLog
 from jaxslam.datasets.paths import DataFormatError
+from jaxslam.datasets.rosbag_messages import (
+    LASER_SCAN,
+    ODOMETRY,
+    TF_MESSAGE,
+    interpolate_odometry,
+    laser_mount,
+    ns_to_seconds,
+    odometry_at_scans,
+    quaternion_yaw,
+    read_odometry_topic,
+    read_scans,
+    read_transforms,
+    seconds_to_ns,
+    snap_increment,
+    snap_start,
+)
+from jaxslam.datasets.rosbag_write import write_rosbag
 
 __all__ = [
     "LASER_SCAN",
@@ -85,11 +104,7 @@ __all__ = [
     "write_rosbag",
 ]
 
-LASER_SCAN = "sensor_msgs/msg/LaserScan"
-ODOMETRY = "nav_msgs/msg/Odometry"
-TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 _MAX_PROBLEMS = 100
-_POLISH_ULPS = 4
 
 
 def is_rosbag(path: os.PathLike | str) -> bool:
@@ -98,55 +113,6 @@ def is_rosbag(path: os.PathLike | str) -> bool:
     if path.is_dir():
         return (path / "metadata.yaml").exists()
     return path.suffix in (".bag", ".mcap", ".db3")
-
-
-def ns_to_seconds(ns: int) -> float:
-    """Integer nanoseconds as float64 seconds, rounded once (exact integer division)."""
-    return int(ns) / 1_000_000_000
-
-
-def seconds_to_ns(seconds: float) -> int:
-    """The integer nanoseconds nearest a float64 time; :func:`ns_to_seconds` gives it back."""
-    return round(Fraction(float(seconds)) * 1_000_000_000)
-
-
-def quaternion_yaw(qx, qy, qz, qw) -> tuple[np.ndarray, np.ndarray]:
-    """Heading of the body x axis and ``cos(tilt)`` of the body z axis, for (...,) arrays.
-
-    ``yaw = atan2(2 (w z + x y), w^2 + x^2 - y^2 - z^2)`` (any scale);
-    ``cos_tilt = (w^2 + z^2 - x^2 - y^2) / |q|^2``, negative for an upside-down body.
-    Planar quaternions ``(0, 0, sin(t/2), cos(t/2))`` give back ``t`` to the ulp, or
-    exactly (see the module docstring), wrapped into ``[-pi, pi]`` only when outside it.
-    """
-    shape = np.broadcast_shapes(*(np.shape(v) for v in (qx, qy, qz, qw)))
-    qx, qy, qz, qw = (np.broadcast_to(np.asarray(v, dtype=np.float64), shape).reshape(-1) for v in (qx, qy, qz, qw))
-    norm2 = qx * qx + qy * qy + qz * qz + qw * qw
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_tilt = (qw * qw + qz * qz - qx * qx - qy * qy) / norm2
-    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), qw * qw + qx * qx - qy * qy - qz * qz)
-    planar = (qx == 0.0) & (qy == 0.0)
-    if np.any(planar):
-        half = np.arctan2(qz, qw)
-        # Candidates nearest first: 0, +1, -1, +2, -2 ... ulps from atan2's answer.
-        candidates = [half]
-        up = down = half
-        for _ in range(_POLISH_ULPS):
-            up, down = np.nextafter(up, np.inf), np.nextafter(down, -np.inf)
-            candidates += [up, down]
-        candidates = np.stack(candidates, axis=-1)
-        hits = (np.sin(candidates) == qz[..., None]) & (np.cos(candidates) == qw[..., None])
-        found = hits.any(axis=-1)
-        best = np.take_along_axis(candidates, np.argmax(hits, axis=-1)[..., None], axis=-1)[..., 0]
-        # Several float64 angles can share one (sin, cos) pair; prefer the shortest decimal
-        # (a heading logged as text, e.g. from a CARMEN log, comes back unchanged).
-        for where in zip(*np.nonzero(hits.sum(axis=-1) > 1)):
-            options = candidates[where][hits[where]]
-            best[where] = min(options, key=lambda value: len(repr(float(2.0 * value))))
-        exact = 2.0 * best
-        exact = np.where(exact > np.pi, exact - 2.0 * np.pi, exact)
-        exact = np.where(exact < -np.pi, exact + 2.0 * np.pi, exact)
-        yaw = np.where(planar & found, exact, yaw)
-    return yaw.reshape(shape), cos_tilt.reshape(shape)
 
 
 @dataclasses.dataclass
@@ -171,7 +137,6 @@ class _Stats:
         self.count("skipped_messages")
         self.count(f"skipped:{reason}")
         self.note(str(DataFormatError(self.path, None, text)))
-
 
 def _open(path: Path):
     from rosbags.highlevel import AnyReader, AnyReaderError
@@ -242,211 +207,6 @@ def _pick_topic(path, types, wanted, given, what, option):
         )
     return None
 
-
-def _stamp_ns(msg) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-
-
-def _snap_increment(increment: float) -> float:
-    """``pi / k`` when it rounds to the float32 ``increment``; else ``increment``."""
-    if not (math.isfinite(increment) and increment != 0.0):
-        return increment
-    k = round(math.pi / abs(increment))
-    if k >= 1 and np.float32(math.pi / k) == np.float32(abs(increment)):
-        return math.copysign(math.pi / k, increment)
-    return increment
-
-
-def _snap_start(start: float, increment: float, snapped: float) -> float:
-    """``pi p / q`` for a multiple of half a snapped step that rounds to ``start``."""
-    if snapped == increment or not math.isfinite(start):
-        return start
-    k = round(math.pi / abs(snapped))
-    half_steps = round(start / (0.5 * abs(snapped)))
-    ratio = Fraction(half_steps, 2 * k)
-    value = math.pi * ratio.numerator / ratio.denominator
-    return value if np.float32(value) == np.float32(start) else start
-
-
-def _describe(geometry: tuple) -> str:
-    n, start, step, low, high = geometry
-    return f"{n} beams from {start:.7g} rad every {step:.7g} rad, ranges {low:.7g}..{high:.7g} m"
-
-
-def _read_scans(reader, path, topic, collector, max_backstep):
-    connections = reader.topics[topic].connections
-    records = []
-    first_geometry = None
-    for index, (conn, record_ns, raw) in enumerate(reader.messages(connections=connections)):
-        try:
-            msg = reader.deserialize(raw, conn.msgtype)
-        except Exception as error:  # noqa: BLE001 - any decoding failure is a bad message
-            collector.bad_message(topic, index, "undecodable", f"cannot decode ({error})")
-            continue
-        stamp = _stamp_ns(msg)
-        ranges = np.asarray(msg.ranges, dtype=np.float32)
-        geometry = (int(ranges.shape[0]), float(msg.angle_min), float(msg.angle_increment),
-                    float(msg.range_min), float(msg.range_max))
-        if stamp == 0:
-            collector.bad_message(topic, index, "zero_stamp", "header stamp is zero (the driver did not set it)")
-            continue
-        if geometry[0] == 0:
-            collector.bad_message(topic, index, "empty_scan", "the scan has no ranges")
-            continue
-        if not (math.isfinite(geometry[1]) and math.isfinite(geometry[2]) and geometry[2] != 0.0):
-            collector.bad_message(topic, index, "bad_geometry",
-                                  f"angle_min {geometry[1]!r} / angle_increment {geometry[2]!r} unusable")
-            continue
-        if not geometry[4] > 0.0:
-            collector.bad_message(topic, index, "bad_geometry", f"range_max {geometry[4]!r} is not positive")
-            continue
-        if first_geometry is not None and geometry != first_geometry[0]:
-            what = "beam count changes" if geometry[0] != first_geometry[0][0] else "scan geometry changes"
-            collector.bad_message(
-                topic, index, "geometry_change",
-                f"{what}: {_describe(geometry)} here, but {_describe(first_geometry[0])} in message "
-                f"{first_geometry[1]}",
-            )
-            continue
-        if records:
-            step = (stamp - records[-1]["stamp"]) / 1e9
-            if step < -max_backstep:
-                collector.bad_message(
-                    topic, index, "backwards_timestamp",
-                    f"header stamp {ns_to_seconds(stamp)!r} goes back {-step:.6g} s from the previous scan "
-                    f"(message {records[-1]['index']}); more than max_backstep={max_backstep} s",
-                )
-                continue
-            if step < 0:
-                collector.count("backwards_timestamps")
-        if first_geometry is None:
-            first_geometry = (geometry, index)
-        records.append({"index": index, "stamp": stamp, "record": record_ns, "ranges": ranges,
-                        "frame": msg.header.frame_id})
-    if not records:
-        skipped = collector.stats.get("skipped_messages", 0)
-        raise DataFormatError(path, None, f"topic {topic} holds no usable LaserScan messages"
-                              + (f"; {skipped} bad messages were skipped" if skipped else ""))
-    frames = sorted({r["frame"] for r in records})
-    if len(frames) > 1:
-        raise DataFormatError(path, None, f"topic {topic}: scans come in several frames {frames}; "
-                              "a single laser is expected")
-    return records, first_geometry[0]
-
-
-def _read_odometry_topic(reader, topic):
-    stamps, poses, frames = [], [], set()
-    for conn, _, raw in reader.messages(connections=reader.topics[topic].connections):
-        msg = reader.deserialize(raw, conn.msgtype)
-        p = msg.pose.pose
-        stamps.append(_stamp_ns(msg))
-        poses.append((p.position.x, p.position.y, p.orientation.x, p.orientation.y,
-                      p.orientation.z, p.orientation.w))
-        frames.add((msg.header.frame_id, msg.child_frame_id))
-    return stamps, poses, frames
-
-
-def _transforms(reader, topic):
-    """Every ``(stamp_ns, parent, child, (tx, ty, tz, qx, qy, qz, qw))`` on a TF topic."""
-    for conn, _, raw in reader.messages(connections=reader.topics[topic].connections):
-        msg = reader.deserialize(raw, conn.msgtype)
-        for tf in msg.transforms:
-            t, q = tf.transform.translation, tf.transform.rotation
-            yield (_stamp_ns(tf), tf.header.frame_id.lstrip("/"), tf.child_frame_id.lstrip("/"),
-                   (t.x, t.y, t.z, q.x, q.y, q.z, q.w))
-
-
-def _rotation(q) -> np.ndarray:
-    x, y, z, w = q
-    n = x * x + y * y + z * z + w * w
-    s = 2.0 / n if n > 0 else 0.0
-    return np.array([
-        [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-        [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
-        [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)],
-    ])
-
-
-def _mount(path, static, base, laser, max_tilt):
-    """``(x, y, yaw)`` of the laser in the base frame and whether it is upside down."""
-    if laser.lstrip("/") == base:
-        return np.zeros(3), False
-    chain = []
-    frame = laser.lstrip("/")
-    seen = {frame}
-    while frame != base:
-        if frame not in static:
-            known = ", ".join(f"{p} -> {c}" for c, (p, _) in sorted(static.items())) or "none"
-            raise DataFormatError(
-                path, None, f"no transform from the base frame {base!r} to the laser frame {laser!r} on "
-                f"/tf_static or /tf (transforms: {known}); pass the laser mount explicitly (laser_offset)"
-            )
-        parent, values = static[frame]
-        chain.append(values)
-        frame = parent
-        if frame in seen:
-            raise DataFormatError(path, None, f"the transforms above {laser!r} form a cycle")
-        seen.add(frame)
-    chain.reverse()  # base -> ... -> laser
-    if len(chain) == 1:
-        tx, ty, _, qx, qy, qz, qw = chain[0]
-        yaw, cos_tilt = quaternion_yaw(qx, qy, qz, qw)
-        yaw, cos_tilt = float(yaw), float(cos_tilt)
-    else:
-        rotation, translation = np.eye(3), np.zeros(3)
-        for tx, ty, tz, qx, qy, qz, qw in chain:
-            translation = translation + rotation @ np.array([tx, ty, tz])
-            rotation = rotation @ _rotation((qx, qy, qz, qw))
-        tx, ty = float(translation[0]), float(translation[1])
-        yaw, cos_tilt = math.atan2(rotation[1, 0], rotation[0, 0]), float(rotation[2, 2])
-    tilt = math.acos(min(1.0, abs(cos_tilt)))
-    if tilt > max_tilt:
-        raise DataFormatError(
-            path, None, f"the laser frame {laser!r} is tilted by {tilt:.3g} rad against {base!r} "
-            f"(max_tilt={max_tilt}); a 2-D filter needs a level laser"
-        )
-    return np.array([tx, ty, yaw], dtype=np.float64), cos_tilt < 0.0
-
-
-def interpolate_odometry(times, poses, query) -> tuple[np.ndarray, np.ndarray]:
-    """Odometry ``poses (N, 3)`` at sorted ``times (N,)`` interpolated to ``query (M,)``.
-
-    ``x``, ``y`` linearly and the heading along the shorter arc, between the last
-    message at or before the query and the next; a query equal to a message's time
-    takes its pose unchanged. Returns ``(poses (M, 3), inside (M,))``; ``inside`` is
-    False for queries outside ``[times[0], times[-1]]`` (their poses are clamped).
-    Times may be integers (ns) or floats (s).
-    """
-    times = np.asarray(times)
-    poses = np.asarray(poses, np.float64).reshape(-1, 3)
-    query = np.asarray(query)
-    inside = (query >= times[0]) & (query <= times[-1])
-    slot = np.clip(np.searchsorted(times, query, side="right") - 1, 0, times.shape[0] - 1)
-    after = np.minimum(slot + 1, times.shape[0] - 1)
-    span = (times[after] - times[slot]).astype(np.float64)
-    elapsed = (query - times[slot]).astype(np.float64)
-    alpha = np.where(span > 0, elapsed / np.where(span > 0, span, 1.0), 0.0)
-    alpha = np.clip(alpha, 0.0, 1.0)
-    start, end = poses[slot], poses[after]
-    turn = (end[:, 2] - start[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
-    out = np.empty_like(start)
-    out[:, :2] = start[:, :2] + alpha[:, None] * (end[:, :2] - start[:, :2])
-    heading = start[:, 2] + alpha * turn
-    heading = np.where(heading > np.pi, heading - 2.0 * np.pi, heading)
-    out[:, 2] = np.where(heading < -np.pi, heading + 2.0 * np.pi, heading)
-    return out, inside
-
-
-def _interpolate(path, odom_ns, odom_xyt, scan_ns, collector):
-    """Odometry at each scan stamp; ``(poses, placed mask, sorted stamps, sorted poses)``."""
-    order = np.argsort(odom_ns, kind="stable")
-    collector.count("odom_backwards_timestamps", int(np.sum(np.diff(odom_ns) < 0)))
-    times = odom_ns[order]
-    poses = odom_xyt[order]
-    out, inside = interpolate_odometry(times, poses, scan_ns)
-    return out, inside, times, poses
-
-
 def load_rosbag(
     path: os.PathLike | str,
     *,
@@ -507,7 +267,7 @@ def load_rosbag(
                 raise DataFormatError(
                     path, None, "no odometry: neither a nav_msgs/msg/Odometry topic nor /tf in the bag; its "
                     "topics: " + ", ".join(f"{t} ({m})" for t, m in sorted(types.items())))
-        records, geometry = _read_scans(reader, path, scan_topic, collector, max_backstep)
+        records, geometry = read_scans(reader, path, scan_topic, collector, max_backstep)
         laser_frame = records[0]["frame"].lstrip("/")
 
         # Static transforms: /tf_static, then transforms on /tf that never change.
@@ -515,7 +275,7 @@ def load_rosbag(
         tf_topics = [t for t, m in types.items() if m == TF_MESSAGE]
         for topic in sorted(tf_topics, key=lambda t: t != "/tf_static"):
             seen_values: dict[str, set] = {}
-            for _, parent, child, values in _transforms(reader, topic):
+            for _, parent, child, values in read_transforms(reader, topic):
                 if topic == "/tf_static":
                     static.setdefault(child, (parent, values))
                 else:
@@ -525,7 +285,7 @@ def load_rosbag(
                     static[child] = next(iter(values))
 
         if types[odom_topic] == ODOMETRY:
-            stamps, raw_poses, frames = _read_odometry_topic(reader, odom_topic)
+            stamps, raw_poses, frames = read_odometry_topic(reader, odom_topic)
             if len(frames) > 1:
                 raise DataFormatError(path, None, f"topic {odom_topic}: odometry in several frames "
                                       f"{sorted(frames)}")
@@ -538,7 +298,7 @@ def load_rosbag(
             wanted_child = base_frame
             if wanted_child is None:
                 dynamic_children = {}
-                for _, parent, child, _ in _transforms(reader, odom_topic):
+                for _, parent, child, _ in read_transforms(reader, odom_topic):
                     dynamic_children.setdefault(child, parent)
                 frame, chain = laser_frame, [laser_frame]
                 while frame in static:
@@ -551,7 +311,7 @@ def load_rosbag(
                         f"frame above it (frames with transforms: {sorted(dynamic_children)}); pass "
                         "base_frame/odom_frame")
                 wanted_child = candidates[0]
-            for stamp, parent, child, values in _transforms(reader, odom_topic):
+            for stamp, parent, child, values in read_transforms(reader, odom_topic):
                 if child == wanted_child and (odom_frame is None or parent == odom_frame):
                     odom_frame = parent
                     stamps.append(stamp)
@@ -572,12 +332,12 @@ def load_rosbag(
             offset = np.asarray(laser_offset, dtype=np.float64).reshape(3)
             flipped = False
         else:
-            offset, flipped = _mount(path, static, base_frame, laser_frame, max_tilt)
+            offset, flipped = laser_mount(path, static, base_frame, laser_frame, max_tilt)
     finally:
         reader.close()
 
     scan_ns = np.array([r["stamp"] for r in records], dtype=np.int64)
-    odom_poses, inside, odom_sorted_ns, odom_sorted = _interpolate(path, odom_ns, odom_xyt, scan_ns, collector)
+    odom_poses, inside, odom_sorted_ns, odom_sorted = odometry_at_scans(path, odom_ns, odom_xyt, scan_ns, collector)
     if not np.all(inside):
         dropped = np.nonzero(~inside)[0]
         collector.count("scans_outside_odometry", int(dropped.shape[0]))
@@ -594,8 +354,8 @@ def load_rosbag(
         odom_poses = odom_poses[inside]
 
     num_beams, angle_min, increment, range_min, range_max = geometry
-    snapped = _snap_increment(increment)
-    start = _snap_start(angle_min, increment, snapped)
+    snapped = snap_increment(increment)
+    start = snap_start(angle_min, increment, snapped)
     angles = start + snapped * np.arange(num_beams)
     if flipped:
         angles = -angles
@@ -647,123 +407,3 @@ def load_rosbag(
         if isinstance(value, np.ndarray):
             value.setflags(write=False)
     return log
-
-
-def write_rosbag(
-    log: CarmenLog,
-    path: os.PathLike | str,
-    *,
-    version: int = 2,
-    storage: str = "sqlite3",
-    odometry: str = "topic",
-    scans: slice | None = None,
-) -> Path:
-    """Write a CARMEN log as a ROS bag: ``/scan``, ``/odom`` or ``/tf``, ``/tf_static``.
-
-    Each scan becomes a ``LaserScan`` in frame ``laser`` stamped with its
-    ``scan_times`` and recorded at its ``logger_times`` (so the bag keeps the log's
-    order); its odometry pose becomes an ``Odometry`` (``odom -> base_link``) with the
-    same stamp, or with ``odometry="tf"`` a ``TFMessage`` on ``/tf``. ``/tf_static``
-    holds the laser mount ``base_link -> laser``. ``max_range`` becomes
-    ``range_max``; ``range_min`` is 0. Headings are written as ROS does,
-    ``(0, 0, sin(t/2), cos(t/2))``.
-
-    Args:
-        log: the log (one beam geometry, no ``angle_offsets``).
-        path: a ``.bag`` file (``version=1``) or a ROS 2 bag folder (``version=2``).
-        version: 1 or 2.
-        storage: ROS 2 storage, ``"sqlite3"`` or ``"mcap"``.
-        odometry: ``"topic"`` (``/odom``) or ``"tf"``.
-        scans: which scans to write (default all).
-    """
-    from rosbags.typesys import Stores, get_typestore
-
-    if np.any(np.asarray(log.angle_offsets) != 0):
-        raise ValueError("a LaserScan topic has one beam geometry; this log interleaves start angles")
-    if odometry not in ("topic", "tf"):
-        raise ValueError(f"odometry must be 'topic' or 'tf', got {odometry!r}")
-    path = Path(path)
-    index = np.arange(log.num_scans)[scans if scans is not None else slice(None)]
-    store = get_typestore(Stores.ROS1_NOETIC if version == 1 else Stores.ROS2_HUMBLE)
-    if TF_MESSAGE not in store.types:  # the ROS 1 store lacks tf2_msgs
-        from rosbags.typesys import get_types_from_msg
-
-        store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF_MESSAGE))
-    types = store.types
-    Time = types["builtin_interfaces/msg/Time"]
-    Header = types["std_msgs/msg/Header"]
-    Vector3 = types["geometry_msgs/msg/Vector3"]
-    Quaternion = types["geometry_msgs/msg/Quaternion"]
-
-    def header(ns: int, frame: str):
-        stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-        if version == 1:
-            return Header(seq=0, stamp=stamp, frame_id=frame)
-        return Header(stamp=stamp, frame_id=frame)
-
-    def quaternion(theta: float):
-        return Quaternion(x=0.0, y=0.0, z=float(np.sin(theta / 2.0)), w=float(np.cos(theta / 2.0)))
-
-    def transform(ns, parent, child, pose):
-        return types["geometry_msgs/msg/TransformStamped"](
-            header=header(ns, parent), child_frame_id=child,
-            transform=types["geometry_msgs/msg/Transform"](
-                translation=Vector3(x=float(pose[0]), y=float(pose[1]), z=0.0), rotation=quaternion(pose[2])))
-
-    def serialize(msg, msgtype):
-        if version == 1:
-            return store.serialize_ros1(msg, msgtype)
-        return store.serialize_cdr(msg, msgtype)
-
-    if version == 1:
-        from rosbags.rosbag1 import Writer
-
-        writer = Writer(path)
-    else:
-        from rosbags.rosbag2 import StoragePlugin, Writer
-
-        plugin = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}[storage]
-        writer = Writer(path, version=9, storage_plugin=plugin)
-    angles = np.asarray(log.angles, dtype=np.float64)
-    step = float(log.angular_resolution)
-    stamps = [seconds_to_ns(t) for t in np.asarray(log.scan_times)[index]]
-    records = []
-    for t in np.asarray(log.logger_times)[index]:  # strictly increasing: the bag keeps the log's order
-        records.append(max(seconds_to_ns(t), records[-1] + 1) if records else seconds_to_ns(t))
-    first_record = min(records) if records else 0
-    with writer:
-        scan_conn = writer.add_connection("/scan", LASER_SCAN, typestore=store)
-        if odometry == "topic":
-            odom_conn = writer.add_connection("/odom", ODOMETRY, typestore=store)
-        else:
-            odom_conn = writer.add_connection("/tf", TF_MESSAGE, typestore=store)
-        static_conn = writer.add_connection("/tf_static", TF_MESSAGE, typestore=store)
-        start_ns = stamps[0] if stamps else 0
-        static = types[TF_MESSAGE](transforms=[transform(start_ns, "base_link", "laser", log.laser_offset)])
-        writer.write(static_conn, first_record, serialize(static, TF_MESSAGE))
-        for scan, stamp, record in zip(index, stamps, records, strict=True):
-            pose = np.asarray(log.odom_poses[scan], dtype=np.float64)
-            if odometry == "topic":
-                odom = types[ODOMETRY](
-                    header=header(stamp, "odom"), child_frame_id="base_link",
-                    pose=types["geometry_msgs/msg/PoseWithCovariance"](
-                        pose=types["geometry_msgs/msg/Pose"](
-                            position=types["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
-                            orientation=quaternion(pose[2])),
-                        covariance=np.zeros(36)),
-                    twist=types["geometry_msgs/msg/TwistWithCovariance"](
-                        twist=types["geometry_msgs/msg/Twist"](linear=Vector3(x=0.0, y=0.0, z=0.0),
-                                                               angular=Vector3(x=0.0, y=0.0, z=0.0)),
-                        covariance=np.zeros(36)))
-                writer.write(odom_conn, record, serialize(odom, ODOMETRY))
-            else:
-                tf = types[TF_MESSAGE](transforms=[transform(stamp, "odom", "base_link", pose)])
-                writer.write(odom_conn, record, serialize(tf, TF_MESSAGE))
-            msg = types[LASER_SCAN](
-                header=header(stamp, "laser"), angle_min=float(angles[0]),
-                angle_max=float(angles[0] + step * (angles.shape[0] - 1)), angle_increment=step,
-                time_increment=0.0, scan_time=0.0, range_min=0.0, range_max=float(log.max_range),
-                ranges=np.asarray(log.ranges[scan], dtype=np.float32),
-                intensities=np.zeros(0, dtype=np.float32))
-            writer.write(scan_conn, record, serialize(msg, LASER_SCAN))
-    return path

@@ -94,26 +94,51 @@ those of the source it used in ``meta["recovered"]``.
 Note: UFastSLAM skips prediction *and* update whenever the DR speed is exactly 0 (the
 car stands still for the first ~20 s); a filter that wants the same behaviour can test
 ``(controls[i, :, 0] != 0).any()``.
+
+Layout: the readers of the single files (:func:`load_dead_reckoning`, :func:`load_gps`,
+:func:`load_scan_times`, :func:`load_laser`, :func:`load_detections`) are in
+:mod:`jaxslam.datasets.victoria_park_files` and re-exported here; the strict table
+reader they share is :mod:`jaxslam.datasets.reader`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import gzip
-import io
-import os
-import re
-import zlib
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from jaxslam.datasets import trees
 from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.victoria_park_files import (
+    BEAM_ANGLES,
+    DATASET,
+    FOLDER,
+    N_BEAMS,
+    NO_RETURN_M,
+    NO_RETURN_VALUE,
+    TIME_ZERO_MS,
+    DeadReckoning,
+    Detections,
+    GpsFixes,
+    LaserScans,
+    load_dead_reckoning,
+    load_detections,
+    load_detections_file,
+    load_gps,
+    load_laser,
+    load_scan_times,
+    ms_to_s,
+    read_laser_text,
+)
 
-DATASET = "Victoria Park"
-FOLDER = "victoria_park"
+__all__ = [
+    "BEAM_ANGLES", "CAR_GEOMETRY", "DATASET", "EXPECTED", "FOLDER", "LASER_OFFSET", "N_BEAMS", "NO_RETURN_M",
+    "NO_RETURN_VALUE", "TIME_ZERO_MS", "DeadReckoning", "Detections", "GpsFixes", "LaserScans",
+    "VictoriaParkSequence", "build_controls", "build_observations", "load_dead_reckoning", "load_detections",
+    "load_gps", "load_laser", "load_scan_times", "load_sequence", "ms_to_s", "read_laser_text",
+]
+"""Public names; the file readers live in :mod:`jaxslam.datasets.victoria_park_files`."""
 
 CAR_GEOMETRY = dict(L=2.83, H=0.76, a=0.95, b=0.5)
 """ACFR's car parameters [m] (``info.txt``): wheelbase ``L``, encoder offset ``H``,
@@ -121,19 +146,6 @@ laser ``a`` ahead of the front axle and ``b`` to the left."""
 
 LASER_OFFSET = (round(CAR_GEOMETRY["L"] + CAR_GEOMETRY["a"], 9), CAR_GEOMETRY["b"])
 """Laser position in the rear-axle frame [m]: ``(L + a, b) = (3.78, 0.5)``."""
-
-TIME_ZERO_MS = 20967
-"""The .mat millisecond stamp that is t = 0 s (the first GPS fix)."""
-
-NO_RETURN_M = 80.0
-"""Laser ranges above this are 'no reflection' (the file value is 81.91 m)."""
-
-NO_RETURN_VALUE = 81.91
-"""The file's 'no reflection' range [m]; NaN, inf and non-positive ranges become this."""
-
-N_BEAMS = 361
-BEAM_ANGLES = np.arange(N_BEAMS) * (np.pi / 360.0)
-"""Raw laser beam angles [rad]: 0 = right, pi/2 = ahead, pi = left."""
 
 EXPECTED = dict(
     n_dr=61945,
@@ -143,53 +155,6 @@ EXPECTED = dict(
     n_detections=52974,
 )
 """Counts stated in the dataset README, for checks."""
-
-
-# --------------------------------------------------------------------------- records
-
-
-@dataclasses.dataclass(frozen=True)
-class DeadReckoning:
-    """Dead-reckoning samples: ``times`` [s], encoder ``speed`` [m/s], ``steering`` [rad]."""
-
-    times: np.ndarray
-    speed: np.ndarray
-    steering: np.ndarray
-
-
-@dataclasses.dataclass(frozen=True)
-class GpsFixes:
-    """GPS fixes: ``times`` [s] and ``xy`` (G, 2) local east/north [m]."""
-
-    times: np.ndarray
-    xy: np.ndarray
-
-
-@dataclasses.dataclass(frozen=True)
-class LaserScans:
-    """Raw scans: ``times`` (S,), ``ranges`` (S, 361) [m], ``angles`` (361,) 0..pi [rad].
-
-    ``meta`` holds the file and the counts of the range policy (module docstring):
-    ``laser_no_return_beams`` and ``laser_invalid_ranges``.
-    """
-
-    times: np.ndarray
-    ranges: np.ndarray
-    angles: np.ndarray
-    meta: dict[str, Any] = dataclasses.field(default_factory=dict)
-
-
-@dataclasses.dataclass(frozen=True)
-class Detections:
-    """Tree detections, one row each, in time order.
-
-    ``bearings`` are in the car frame: 0 ahead, left positive (raw bearing - pi/2).
-    """
-
-    times: np.ndarray
-    ranges: np.ndarray
-    bearings: np.ndarray
-    diameters: np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -220,446 +185,6 @@ class VictoriaParkSequence:
     @property
     def n_steps(self) -> int:
         return int(self.times.shape[0])
-
-
-# --------------------------------------------------------------------------- parsing
-
-
-_GZIP_MAGIC = b"\x1f\x8b"
-# Printable ASCII and the usual whitespace; anything else (NUL, other control bytes,
-# non-ASCII, which decodes to U+FFFD) is reported as such rather than as a bad number.
-_UNPRINTABLE = re.compile(r"[^\x20-\x7e\t\n\r\v\f]")
-_TOKEN = re.compile(r"\S+")
-
-
-class _TruncatedGzip(Exception):
-    """A gzip stream ended early or is corrupt; carries the text decoded so far."""
-
-    def __init__(self, text: str, error: Exception):
-        super().__init__(str(error))
-        self.text = text
-        self.error = error
-
-
-def _read_text(path: Path) -> str:
-    """The text of ``path``, gunzipped when it starts with the gzip magic (whatever its
-    suffix), decoded as ASCII with non-ASCII bytes replaced by U+FFFD.
-
-    Raises:
-        DataFormatError: the path is a directory.
-        _TruncatedGzip: the gzip stream is truncated or corrupt.
-    """
-    try:
-        with open(path, "rb") as handle:
-            data = handle.read()
-    except IsADirectoryError:
-        raise DataFormatError(path, None, "is a directory, not a data file") from None
-    if data[:2] != _GZIP_MAGIC:
-        return data.decode("ascii", errors="replace")
-    chunks: list[bytes] = []
-    try:
-        with gzip.GzipFile(fileobj=io.BytesIO(data)) as stream:
-            while chunk := stream.read(1 << 20):
-                chunks.append(chunk)
-    except (EOFError, OSError, zlib.error) as error:
-        raise _TruncatedGzip(b"".join(chunks).decode("ascii", errors="replace"), error) from None
-    return b"".join(chunks).decode("ascii", errors="replace")
-
-
-def _gzip_error(path: Path, truncated: _TruncatedGzip, unit: str, complete: int, line: int) -> DataFormatError:
-    error = truncated.error
-    return DataFormatError(
-        path, line,
-        f"gzip stream is truncated or corrupt after {complete} complete {unit} "
-        f"({type(error).__name__}: {error}); re-download the file",
-    )
-
-
-def _first_unprintable(path: Path, text: str) -> None:
-    match = _UNPRINTABLE.search(text)
-    if match is not None:
-        line = text.count("\n", 0, match.start()) + 1
-        raise DataFormatError(path, line, f"unexpected character {match.group()!r} (not printable ASCII)")
-
-
-def _parse_floats(words: list[str]) -> tuple[np.ndarray | None, int | None]:
-    """``(values, None)``, or ``(None, index of the first word that is not a number)``.
-
-    Python's and NumPy's float parsers accept ``1_000``; a data file never means that,
-    so words with an underscore are refused too.
-    """
-    try:
-        values = np.array(words, dtype=np.float64)
-    except ValueError:
-        values = None
-    if values is not None and not any("_" in word for word in words):
-        return values, None
-    bad = next(i for i, word in enumerate(words) if "_" in word or not _is_float(word))
-    return None, bad
-
-
-def _is_float(word: str) -> bool:
-    try:
-        float(word)
-    except ValueError:
-        return False
-    return True
-
-
-def _read_records(path: Path, n_columns: int, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """Parse a line-per-record numeric table; ``(table (N, n_columns), line numbers (N,))``."""
-    try:
-        text = _read_text(path)
-    except _TruncatedGzip as truncated:
-        complete = truncated.text.count("\n")
-        raise _gzip_error(path, truncated, "lines", complete, complete + 1) from None
-    _first_unprintable(path, text)
-    words: list[str] = []
-    line_numbers: list[int] = []
-    for number, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"), start=1):
-        parts = line.split()
-        if not parts:
-            continue
-        if len(parts) != n_columns:
-            raise DataFormatError(
-                path, number, f"expected {n_columns} numbers ({what}), found {len(parts)}: {line.strip()[:80]!r}"
-            )
-        words.extend(parts)
-        line_numbers.append(number)
-    if not line_numbers:
-        raise DataFormatError(path, None, f"no records ({what})")
-    lines = np.asarray(line_numbers, dtype=np.int64)
-    values, bad = _parse_floats(words)
-    if values is None:
-        raise DataFormatError(
-            path, int(lines[bad // n_columns]),
-            f"{words[bad][:40]!r} is not a number (field {bad % n_columns + 1} of {n_columns}: {what})",
-        )
-    finite = np.isfinite(values)
-    if not finite.all():
-        bad = int(np.argmin(finite))
-        raise DataFormatError(
-            path, int(lines[bad // n_columns]),
-            f"non-finite value {words[bad][:40]!r} (field {bad % n_columns + 1} of {n_columns}: {what})",
-        )
-    return values.reshape(-1, n_columns), lines
-
-
-def read_table(path: os.PathLike | str, n_columns: int, what: str) -> np.ndarray:
-    """Read a whitespace-separated numeric table, one record per line.
-
-    Blank lines are skipped; LF, CRLF and CR line ends are accepted; a gzip stream is
-    recognised by its first bytes. Every problem (wrong column count, a word that is not
-    a number, a non-finite value, a character that is not printable ASCII, a truncated
-    or corrupt gzip stream, no records at all) raises :class:`DataFormatError` naming
-    the file and line.
-
-    Args:
-        path: the file.
-        n_columns: the number of numbers each line must hold.
-        what: the column names, for the error message.
-
-    Returns:
-        (N, n_columns) float64.
-    """
-    return _read_records(Path(path), n_columns, what)[0]
-
-
-def _record(lines: np.ndarray | None, k: int) -> tuple[int | None, str]:
-    """Line number of record ``k`` (text files) or ``None`` and a record label (arrays)."""
-    if lines is None:
-        return None, f"record {k + 1}: "
-    return int(lines[k]), ""
-
-
-def _check_increasing(path: Path, times: np.ndarray, strict: bool, lines: np.ndarray | None = None) -> None:
-    """Raise if ``times`` ever decreases (or repeats, when ``strict``); names the line or record."""
-    steps = np.diff(times)
-    bad = np.nonzero(steps <= 0 if strict else steps < 0)[0]
-    if bad.size:
-        k = int(bad[0]) + 1
-        line, label = _record(lines, k)
-        order = "increase" if strict else "not decrease"
-        raise DataFormatError(
-            path, line, f"{label}time {times[k]:.3f} s after {times[k - 1]:.3f} s: times must {order}"
-        )
-
-
-def _load_npz(path: Path, names: list[str]) -> dict[str, np.ndarray]:
-    """The named arrays of an ``.npz`` archive as 1-D float64 (or as stored, for 2-D),
-    each checked to be numeric and finite; anything else is a :class:`DataFormatError`."""
-    # A damaged archive fails deep inside zipfile/zlib/NumPy with many exception types
-    # (BadZipFile, zlib.error, EOFError, NotImplementedError for a garbled version
-    # field, ValueError for a bad array header ...): every one means "unreadable".
-    try:
-        archive = np.load(path, allow_pickle=False)
-    except IsADirectoryError:
-        raise DataFormatError(path, None, "is a directory, not a data file") from None
-    except FileNotFoundError:
-        raise
-    except Exception as error:  # noqa: BLE001 (see above)
-        raise DataFormatError(path, None, f"not a readable .npz archive ({type(error).__name__}: {error})") from None
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise DataFormatError(path, None, "holds a single array, not an .npz archive of named arrays")
-    arrays = {}
-    with archive:
-        for name in names:
-            if name not in archive.files:
-                raise DataFormatError(path, None, f"missing array {name!r} (has {sorted(archive.files)})")
-            try:
-                array = np.asarray(archive[name])
-            except Exception as error:  # noqa: BLE001 (see above)
-                raise DataFormatError(
-                    path, None, f"array {name!r} is unreadable ({type(error).__name__}: {error})"
-                ) from None
-            if array.dtype.kind not in "iuf":
-                raise DataFormatError(path, None, f"array {name!r} has dtype {array.dtype}, not numbers")
-            if array.size == 0:
-                raise DataFormatError(path, None, f"array {name!r} is empty: no records")
-            arrays[name] = array
-    return arrays
-
-
-def _finite_columns(path: Path, **columns: np.ndarray) -> None:
-    """Raise naming the first record of any column that is not finite."""
-    for name, values in columns.items():
-        finite = np.isfinite(values)
-        if not finite.all():
-            k = int(np.argmin(finite.reshape(finite.shape[0], -1).all(axis=1)))
-            raise DataFormatError(path, None, f"record {k + 1}: {name} is not finite")
-
-
-def _same_length(path: Path, **columns: np.ndarray) -> None:
-    lengths = {name: int(values.shape[0]) for name, values in columns.items()}
-    if len(set(lengths.values())) > 1:
-        raise DataFormatError(path, None, f"arrays differ in length: {lengths}")
-
-
-def _locate(default: tuple[str, ...], path: os.PathLike | str | None) -> Path:
-    return Path(path) if path is not None else find(DATASET, FOLDER, *default)
-
-
-def ms_to_s(t_ms: np.ndarray) -> np.ndarray:
-    """.mat milliseconds to the module's time base [s]."""
-    return (np.asarray(t_ms, dtype=np.float64) - TIME_ZERO_MS) / 1000.0
-
-
-# --------------------------------------------------------------------------- loaders
-
-
-def load_dead_reckoning(release: str = "mat", path: os.PathLike | str | None = None) -> DeadReckoning:
-    """Load the dead-reckoning samples (40 Hz).
-
-    Args:
-        release: ``"mat"`` (``mat/aa3_dr.npz``: 61945 samples, t = 0.973 .. 1549.573 s,
-            original steering calibration; the default, see the module docstring) or
-            ``"ascii"`` (``acfr_ascii/DRS.txt``: 61763 samples to 1545.023 s,
-            recalibrated steering). A path that is not ``.npz`` is read as text
-            ``time speed steering`` whatever the release.
-        path: read this file instead of the one in the data folder.
-
-    Raises:
-        DataFormatError: see the module docstring (input checks).
-    """
-    default = {"mat": ("mat", "aa3_dr.npz"), "ascii": ("acfr_ascii", "DRS.txt")}
-    times, speed, steering = _load_timed_table(
-        release, path, default, ("time", "speed", "steering"), "time_s speed_m_s steering_rad"
-    )
-    return DeadReckoning(times=times, speed=speed, steering=steering)
-
-
-def _load_timed_table(
-    release: str,
-    path: os.PathLike | str | None,
-    default: dict[str, tuple[str, ...]],
-    npz_names: tuple[str, str, str],
-    text_header: str,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(times [s], column 1, column 2)`` from a ``.npz`` (time in ms, arrays named
-    ``npz_names``) or a text table ``time_s a b``; times strictly increasing."""
-    if release not in default:
-        raise ValueError(f"release must be 'mat' or 'ascii', got {release!r}")
-    file = _locate(default[release], path)
-    if file.suffix == ".npz":
-        arrays = _load_npz(file, list(npz_names))
-        columns = {n: arrays[n].reshape(-1).astype(np.float64) for n in npz_names}
-        _same_length(file, **columns)
-        _finite_columns(file, **columns)
-        time_ms, first, second = (columns[n] for n in npz_names)
-        times, lines = ms_to_s(time_ms), None
-    else:
-        table, lines = _read_records(file, 3, text_header)
-        times, first, second = (column.copy() for column in table.T)
-    _check_increasing(file, times, strict=True, lines=lines)
-    return times, first, second
-
-
-def load_gps(release: str = "mat", path: os.PathLike | str | None = None) -> GpsFixes:
-    """Load the GPS fixes.
-
-    Args:
-        release: ``"mat"`` (``mat/aa3_gpsx.npz``, 4466 fixes, ``xy = (Lo_m, La_m)``,
-            the default) or ``"ascii"`` (``acfr_ascii/GPS.txt``, 948 of them in another
-            local frame). A path that is not ``.npz`` is read as text ``time x y``.
-        path: read this file instead of the one in the data folder.
-
-    Raises:
-        DataFormatError: see the module docstring (input checks).
-    """
-    default = {"mat": ("mat", "aa3_gpsx.npz"), "ascii": ("acfr_ascii", "GPS.txt")}
-    times, east, north = _load_timed_table(release, path, default, ("timeGps", "Lo_m", "La_m"), "time_s x_m y_m")
-    xy = np.stack([east, north], axis=1)
-    return GpsFixes(times=times, xy=xy)
-
-
-def load_scan_times(path: os.PathLike | str | None = None) -> np.ndarray:
-    """The 7249 ``aa3_lsr2`` scan times [s] (``ufastslam/lasersampling.txt``, in ms).
-
-    Raises:
-        DataFormatError: see the module docstring (input checks).
-    """
-    file = _locate(("ufastslam", "lasersampling.txt"), path)
-    table, lines = _read_records(file, 1, "TLsr_ms")
-    times = ms_to_s(table[:, 0])
-    _check_increasing(file, times, strict=True, lines=lines)
-    return times
-
-
-def _range_policy(ranges: np.ndarray) -> tuple[np.ndarray, dict[str, int]]:
-    """Apply the laser range policy (module docstring): ``(ranges float32, counts)``.
-
-    Judged after the cast to float32, so a range that under- or overflows there
-    (``1e-320``, ``1e300``) counts as invalid too.
-    """
-    with np.errstate(over="ignore"):
-        ranges = np.asarray(ranges).astype(np.float32)
-    invalid = ~np.isfinite(ranges) | (ranges <= 0)
-    no_return = ~invalid & (ranges > NO_RETURN_M)
-    ranges = np.where(invalid, np.float32(NO_RETURN_VALUE), ranges)
-    return ranges, {"laser_no_return_beams": int(no_return.sum()), "laser_invalid_ranges": int(invalid.sum())}
-
-
-def load_laser(path: os.PathLike | str | None = None) -> LaserScans:
-    """Load the raw laser scans of the ACFR ASCII release (7230 scans, 0.852 .. 1545.182 s).
-
-    Args:
-        path: ``laser_acfr_ascii.npz`` (the default), or a ``LASER.txt`` stream of
-            ``time r_0 .. r_360`` records (line breaks optional, gzip recognised by its
-            first bytes).
-
-    Returns:
-        Ranges in metres; values above :data:`NO_RETURN_M` mean no return. NaN, inf and
-        non-positive ranges are replaced by :data:`NO_RETURN_VALUE` and counted in
-        ``meta`` (the range policy in the module docstring).
-
-    Raises:
-        DataFormatError: see the module docstring (input checks).
-    """
-    file = _locate(("acfr_ascii", "laser_acfr_ascii.npz"), path)
-    if file.suffix == ".npz":
-        arrays = _load_npz(file, ["time_s", "ranges_m"])
-        times = arrays["time_s"].reshape(-1).astype(np.float64)
-        ranges = arrays["ranges_m"].astype(np.float64)
-        if ranges.ndim != 2 or ranges.shape != (times.shape[0], N_BEAMS):
-            raise DataFormatError(
-                file, None, f"ranges_m has shape {ranges.shape}, expected ({times.shape[0]}, {N_BEAMS})"
-            )
-        _finite_columns(file, time_s=times)
-        ranges, counts = _range_policy(ranges)
-        _check_increasing(file, times, strict=True)
-    else:
-        times, ranges, counts = _read_laser_text(file)
-    meta = dict(file=str(file), n_scans=int(times.size), **counts)
-    return LaserScans(times=times, ranges=ranges, angles=BEAM_ANGLES.astype(np.float32), meta=meta)
-
-
-def read_laser_text(path: os.PathLike | str) -> tuple[np.ndarray, np.ndarray]:
-    """Parse ACFR's ``LASER.txt`` (optionally gzipped): records of ``1 + 361`` numbers.
-
-    The original file has no line breaks, so errors name the record (scan), the field
-    and the line. Ranges follow the range policy of the module docstring; use
-    :func:`load_laser` to get the counts. Returns ``(times (S,), ranges (S, 361) float32)``.
-    """
-    times, ranges, _ = _read_laser_text(Path(path))
-    return times, ranges
-
-
-def _read_laser_text(path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
-    record = 1 + N_BEAMS
-    try:
-        text = _read_text(path)
-    except _TruncatedGzip as truncated:
-        complete = len(truncated.text.split()) // record
-        line = truncated.text.count("\n") + 1
-        raise _gzip_error(path, truncated, f"records (scans) of {record} numbers", complete, line) from None
-    _first_unprintable(path, text)
-
-    def where(index: int) -> tuple[int, str]:
-        match = next(m for i, m in enumerate(_TOKEN.finditer(text)) if i == index)
-        line = text.count("\n", 0, match.start()) + 1
-        return line, f"record {index // record + 1}, field {index % record + 1} of {record}"
-
-    words = text.split()
-    if not words:
-        raise DataFormatError(path, None, "no records (time + 361 ranges)")
-    values, bad = _parse_floats(words)
-    if values is None:
-        line, place = where(bad)
-        raise DataFormatError(path, line, f"{words[bad][:20]!r} is not a number ({place})")
-    if values.size % record:
-        n_full = values.size // record
-        line = text.count("\n", 0, len(text.rstrip())) + 1
-        raise DataFormatError(
-            path, line,
-            f"{values.size} numbers is not a whole number of {record}-number records "
-            f"(time + {N_BEAMS} ranges): record {n_full + 1} is incomplete",
-        )
-    table = values.reshape(-1, record)
-    times = table[:, 0].copy()
-    finite = np.isfinite(times)
-    if not finite.all():
-        index = int(np.argmin(finite)) * record
-        line, place = where(index)
-        raise DataFormatError(path, line, f"scan time {words[index]!r} is not finite ({place})")
-    steps = np.diff(times)
-    if np.any(steps <= 0):
-        k = int(np.argmax(steps <= 0)) + 1
-        line, place = where(k * record)
-        raise DataFormatError(
-            path, line, f"time {times[k]:.3f} s after {times[k - 1]:.3f} s ({place}): times must increase"
-        )
-    ranges, counts = _range_policy(table[:, 1:])
-    return times, ranges, counts
-
-
-def _load_detections(file: Path) -> tuple[Detections, np.ndarray]:
-    table, lines = _read_records(file, 4, "time_s range_m bearing_rad diameter_m")
-    times, ranges, raw_bearings, diameters = (column.copy() for column in table.T)
-    _check_increasing(file, times, strict=False, lines=lines)
-    bad = np.nonzero((ranges <= 0) | (raw_bearings < 0) | (raw_bearings > np.pi + 1e-6) | (diameters < 0))[0]
-    if bad.size:
-        k = int(bad[0])
-        raise DataFormatError(
-            file, int(lines[k]),
-            f"range {ranges[k]} m / bearing {raw_bearings[k]} rad / diameter {diameters[k]} m outside "
-            "range > 0, bearing in [0, pi], diameter >= 0",
-        )
-    detections = Detections(times=times, ranges=ranges, bearings=raw_bearings - np.pi / 2, diameters=diameters)
-    return detections, lines
-
-
-def load_detections(path: os.PathLike | str | None = None) -> Detections:
-    """Load ACFR's tree detections (``rfs_slam_ascii/measurements.dat``, 52974 rows).
-
-    Rows are ``time range raw_bearing diameter``; the raw bearing runs 0..pi with pi/2
-    ahead and is returned as ``raw - pi/2`` (0 ahead, left positive).
-
-    Raises:
-        DataFormatError: see the module docstring (input checks); also a range that is
-            not positive, a raw bearing outside [0, pi] or a negative diameter.
-    """
-    return _load_detections(_locate(("rfs_slam_ascii", "measurements.dat"), path))[0]
-
 
 # --------------------------------------------------------------------------- sequence
 
@@ -765,7 +290,7 @@ def load_sequence(
     if source == "detections":
         scan_times = load_scan_times()
         detections_file = find(DATASET, FOLDER, "rfs_slam_ascii", "measurements.dat")
-        detections, lines = _load_detections(detections_file)
+        detections, lines = load_detections_file(detections_file)
         obs_times, obs_ranges, obs_bearings = detections.times, detections.ranges, detections.bearings
         _, unmatched = _scan_of(scan_times, obs_times)
         if unmatched.any():

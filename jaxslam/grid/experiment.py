@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxslam.datasets.carmen import CarmenLog, load_dataset_log, select_keyframes
+from jaxslam.datasets.registry import algorithms
 from jaxslam.grid import gmapping, srupf
 from jaxslam.grid.driver import run_filter
 from jaxslam.grid.filter import best_particle
@@ -31,7 +32,7 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, Scan, d
 from jaxslam.grid.update import required_points
 from jaxslam.metrics.trajectory_io import interpolate_poses, se2_between
 
-ALGORITHMS = ("srupf-gm", "srupf-gm-npc", "gmapping")
+ALGORITHMS = algorithms("laser")
 
 # Keyframe rule (GMapping's linearUpdate m, angularUpdate rad, temporalUpdate s; a
 # negative temporal update disables it).

@@ -37,7 +37,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxslam.datasets.paths import DataFormatError, find, numeric_rows
+from jaxslam.datasets.paths import DataFormatError, find
+from jaxslam.datasets.reader import numeric_rows
+from jaxslam.datasets.registry import DATASETS
 from jaxslam.metrics.trajectory_io import se2_between
 
 __all__ = [
@@ -51,12 +53,9 @@ __all__ = [
     "relations_metric",
 ]
 
-DATASET_RELATIONS = {
-    "intel": "intel.relations",
-    "fr079": "fr079.relations",
-    "mit-killian": "mit-killian.relations",
-}
-"""Benchmark name -> file in ``slam_benchmark_relations/``."""
+DATASET_RELATIONS = {info.name: info.relations for info in DATASETS.values() if info.relations is not None}
+"""Dataset name -> path parts of its relations file, for the registry's entries
+that have one (a view of :data:`jaxslam.datasets.registry.DATASETS`)."""
 
 _PLANAR_TOL = 1e-9
 
@@ -131,10 +130,11 @@ def load_relations(path: os.PathLike | str) -> Relations:
 
 
 def load_dataset_relations(name: str) -> Relations:
-    """Load the benchmark relations of ``intel``, ``fr079`` or ``mit-killian``."""
+    """Load the benchmark relations of a registered dataset (``intel``, ``fr079``,
+    ``mit-killian``)."""
     if name not in DATASET_RELATIONS:
         raise ValueError(f"no relations for {name!r}; known: {', '.join(DATASET_RELATIONS)}")
-    return load_relations(find(name, "slam_benchmark_relations", DATASET_RELATIONS[name]))
+    return load_relations(find(name, *DATASET_RELATIONS[name]))
 
 
 def match_timestamps(

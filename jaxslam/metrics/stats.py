@@ -4,8 +4,8 @@ For ``n`` independent results :math:`x_i` with mean :math:`\bar x` and sample st
 deviation :math:`s`, the two-sided confidence interval of the mean is
 :math:`\bar x \pm t_{n-1, (1+c)/2}\, s / \sqrt n` (Student's t). For a rate
 (``k`` of ``n`` runs, e.g. diverged) the Wilson score interval is used, which stays
-inside ``[0, 1]`` and is sensible at ``k = 0`` or ``k = n``. Host-side, standard
-library and NumPy only.
+inside ``[0, 1]`` and is sensible at ``k = 0`` or ``k = n``. Host-side NumPy; the
+t and normal quantiles come from :mod:`scipy.stats`.
 """
 
 from __future__ import annotations
@@ -13,51 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-
-def bisect_increasing(fn, target: float, lo: float, hi: float, iterations: int = 200) -> float:
-    """``x`` in ``[lo, hi]`` with ``fn(x) = target`` for an increasing ``fn`` (bisection)."""
-    for _ in range(iterations):
-        mid = 0.5 * (lo + hi)
-        if fn(mid) < target:
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
-
-
-def student_t_two_sided(t: float, dof: int) -> float:
-    """``P(|T| < t)`` for Student's t with integer ``dof`` (Abramowitz & Stegun 26.7.3-4)."""
-    if t <= 0:
-        return 0.0
-    theta = math.atan(t / math.sqrt(dof))
-    s, c = math.sin(theta), math.cos(theta)
-    if dof % 2:
-        total, term = 0.0, s * c if dof > 1 else 0.0
-        k = 1
-        while k <= dof - 2:
-            total += term
-            term *= c * c * (k + 1) / (k + 2)
-            k += 2
-        return 2.0 / math.pi * (theta + total)
-    total, term = 0.0, 1.0
-    k = 0
-    while k <= dof - 2:
-        total += term
-        term *= c * c * (k + 1) / (k + 2)
-        k += 2
-    return s * total
-
-
-def student_t_quantile(p: float, dof: int) -> float:
-    """Upper quantile ``t`` with ``P(T < t) = p`` for ``p > 0.5`` (bisection)."""
-    if not 0.5 < p < 1.0:
-        raise ValueError(f"p must be in (0.5, 1), got {p}")
-    target = 2.0 * p - 1.0
-    lo, hi = 0.0, 1.0
-    while student_t_two_sided(hi, dof) < target:
-        hi *= 2.0
-    return bisect_increasing(lambda t: student_t_two_sided(t, dof), target, lo, hi)
+from scipy import stats
 
 
 def mean_ci(values, confidence: float = 0.95) -> dict[str, float]:
@@ -72,7 +28,7 @@ def mean_ci(values, confidence: float = 0.95) -> dict[str, float]:
     if x.size == 1:
         return dict(mean=mean, std=float("nan"), ci_low=float("nan"), ci_high=float("nan"), n=1)
     std = float(x.std(ddof=1))
-    half = student_t_quantile(0.5 * (1.0 + confidence), x.size - 1) * std / math.sqrt(x.size)
+    half = float(stats.t.ppf(0.5 * (1.0 + confidence), x.size - 1)) * std / math.sqrt(x.size)
     return dict(mean=mean, std=std, ci_low=mean - half, ci_high=mean + half, n=int(x.size))
 
 
@@ -80,13 +36,10 @@ def rate_ci(successes: int, trials: int, confidence: float = 0.95) -> dict[str, 
     """A rate ``successes / trials`` with its Wilson score interval."""
     if trials <= 0 or not 0 <= successes <= trials:
         raise ValueError(f"need 0 <= successes <= trials and trials > 0, got {successes}/{trials}")
-    z = math.sqrt(2.0) * _erfinv(confidence)
+    z = float(stats.norm.ppf(0.5 * (1.0 + confidence)))
     p = successes / trials
     denom = 1.0 + z * z / trials
     centre = (p + z * z / (2 * trials)) / denom
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
     return dict(rate=p, ci_low=max(0.0, centre - half), ci_high=min(1.0, centre + half), k=successes, n=trials)
 
-
-def _erfinv(y: float) -> float:
-    return bisect_increasing(math.erf, y, 0.0, 10.0)

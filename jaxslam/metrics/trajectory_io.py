@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
-from jaxslam.datasets.paths import DataFormatError, numeric_rows
+from jaxslam.datasets.paths import DataFormatError
+from jaxslam.datasets.reader import numeric_rows
 
 __all__ = [
     "interpolate_poses",

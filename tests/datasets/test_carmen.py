@@ -14,13 +14,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxslam.datasets.carmen import (
-    DATASET_LOGS,
     guess_angular_resolution,
     load_carmen,
     load_dataset_log,
     select_keyframes,
 )
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError, find
+from jaxslam.datasets.registry import lookup
 
 
 @functools.lru_cache(maxsize=None)
@@ -120,8 +120,7 @@ def test_corrected_log(place):
 
 def test_mrpt_logs_load_by_path():
     for name in ("mrpt-sena", "mrpt-localization-demo", "mrpt-ual"):
-        folder, filename, _ = DATASET_LOGS[name]
-        log = load_dataset_log(_data(folder, filename))
+        log = load_dataset_log(_data(*lookup(name).files[0]))
         assert log.num_scans == SHIPPED[name][1]
 
 

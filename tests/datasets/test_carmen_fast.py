@@ -16,6 +16,8 @@ from hypothesis import strategies as st
 
 from jaxslam.datasets import carmen
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
+from jaxslam.datasets.reader import read_bytes
+from jaxslam.datasets.registry import lookup
 from tests.datasets.test_carmen import _corrupted_log
 
 
@@ -24,7 +26,7 @@ def _load(path_or_name, slow: bool, **options):
     loader = carmen.load_dataset_log if isinstance(path_or_name, str) else carmen.load_carmen
     try:
         if slow:
-            with mock.patch.object(carmen, "_read_lines_fast", lambda *args: None):
+            with mock.patch.object(carmen, "read_lines_fast", lambda *args: None):
                 return loader(path_or_name, **options), None
         return loader(path_or_name, **options), None
     except DataFormatError as error:
@@ -44,11 +46,11 @@ def _assert_same(fast, slow) -> None:
 @pytest.mark.parametrize("name", ["intel", "mit-csail", "intel-corrected", "orebro-corrected"])
 def test_bulk_reader_equals_line_reader_on_real_logs(name):
     try:
-        path = carmen.find(name, *carmen.DATASET_LOGS[name][:2])
+        path = lookup(name).paths()[0]
     except DatasetNotFoundError as error:
         pytest.skip(str(error))
-    text = carmen._read_bytes(path)
-    assert carmen._read_lines_fast(text, None, 1.0) is not None  # the bulk path is taken
+    text = read_bytes(path)
+    assert carmen.read_lines_fast(text, None, 1.0) is not None  # the bulk path is taken
     (fast, _), (slow, _) = _load(name, False), _load(name, True)
     _assert_same(fast, slow)
 
@@ -83,7 +85,7 @@ def test_bulk_reader_falls_back_for_what_it_does_not_handle(tmp_path):
     for name, (lines, bulk) in cases.items():
         path = tmp_path / f"{name.replace(' ', '_')}.clf"
         path.write_bytes(b"".join(lines))
-        assert (carmen._read_lines_fast(path.read_bytes(), None, 1.0) is not None) == bulk, name
+        assert (carmen.read_lines_fast(path.read_bytes(), None, 1.0) is not None) == bulk, name
         for on_error in ("raise", "skip"):
             (fast, fast_error), (slow, slow_error) = _load(path, False, on_error=on_error), _load(
                 path, True, on_error=on_error)

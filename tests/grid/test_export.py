@@ -1,7 +1,12 @@
-"""Map export: ROS map_server PGM + YAML, and PNG."""
+"""Map export: ROS map_server PGM + YAML, and PNG, read back by independent readers:
+Pillow for the PNG and the PGM pixels, a few lines of NumPy for the PGM header as the
+netpbm specification defines it (https://netpbm.sourceforge.net/doc/pgm.html)."""
 
+import io
+import re
 
 import numpy as np
+from PIL import Image
 
 from jaxslam.grid.export import (
     FREE,
@@ -26,25 +31,54 @@ def test_occupancy_image_thresholds_and_orientation():
 
 
 def _png_pixels(data: bytes) -> np.ndarray:
-    """Decode a PNG with matplotlib (an independent reader) to uint8 grey or RGB."""
-    import io
-
-    from matplotlib.image import imread
-
+    """Decode a PNG with Pillow to uint8 grey (when R = G = B) or RGB; alpha must be 255."""
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    rgba = np.round(imread(io.BytesIO(data), format="png") * 255).astype(np.uint8)
+    with Image.open(io.BytesIO(data)) as image:
+        assert image.format == "PNG"
+        rgba = np.asarray(image.convert("RGBA"))
+    assert np.all(rgba[..., 3] == 255)
     rgb = rgba[..., :3]
     if np.all(rgb[..., 0] == rgb[..., 1]) and np.all(rgb[..., 1] == rgb[..., 2]):
         return rgb[..., 0]
     return rgb
 
 
+# netpbm PGM: "P5", whitespace, width, whitespace, height, whitespace, maxval (ASCII
+# decimals; a '#' starts a comment to the end of the line), then exactly one
+# whitespace character and the raster, one byte per sample when maxval < 256.
+_SEP = rb"(?:\s|#[^\r\n]*[\r\n])+"
+_PGM_HEADER = re.compile(rb"P5" + _SEP + rb"(\d+)" + _SEP + rb"(\d+)" + _SEP + rb"(\d+)\s")
+
+
+def _pgm_by_spec(data: bytes) -> np.ndarray:
+    header = _PGM_HEADER.match(data)
+    assert header is not None, data[:40]
+    width, height, maxval = (int(group) for group in header.groups())
+    assert 0 < maxval < 256
+    assert len(data) == header.end() + width * height  # nothing after the raster
+    return np.frombuffer(data, np.uint8, count=width * height, offset=header.end()).reshape(height, width)
+
+
+def test_pgm_header_parser_follows_the_spec():
+    raster = np.arange(6, dtype=np.uint8).reshape(2, 3)
+    for header in (b"P5 3 2 255\n", b"P5\n# a comment\n3\t2\r\n# another\n255 ", b"P5\n3\n2\n15\n"):
+        np.testing.assert_array_equal(_pgm_by_spec(header + raster.tobytes()), raster)
+    assert _PGM_HEADER.match(b"P2 3 2 255\n0 1 2 3 4 5\n") is None  # plain (ASCII) PGM: another format
+    assert _PGM_HEADER.match(b"P5 3 2 255") is None  # maxval must be followed by one whitespace
+    assert _PGM_HEADER.match(b"P5 3 # no newline ends this comment") is None
+
+
 def test_save_map_roundtrip(tmp_path):
     rng = np.random.default_rng(0)
     log_odds = rng.normal(0, 2, (7, 11))
     paths = save_map(tmp_path / "out", log_odds, 0.05, (-1.25, 3.5))
-    pgm = read_pgm(paths["pgm"])
+    data = paths["pgm"].read_bytes()
+    pgm = _pgm_by_spec(data)
     np.testing.assert_array_equal(pgm, occupancy_image(log_odds))
+    with Image.open(paths["pgm"]) as image:
+        assert image.format == "PPM" and image.mode == "L" and image.size == (11, 7)
+        np.testing.assert_array_equal(np.asarray(image), pgm)
+    np.testing.assert_array_equal(read_pgm(paths["pgm"]), pgm)  # our own reader agrees
     yaml = paths["yaml"].read_text()
     assert "image: map.pgm" in yaml
     assert "resolution: 0.050000" in yaml

@@ -1,0 +1,121 @@
+"""The files of a ``jaxslam run`` output folder, written and redrawn in one place.
+
+* ``summary.json`` (:func:`write_json`, atomically) and ``run.json``;
+* ``trajectory.tum`` — the estimate in the TUM format;
+* landmark runs: ``landmarks.csv`` (id, x, y, covariance);
+* grid runs: ``map.pgm`` + ``map.yaml`` (ROS map_server convention) and ``map.png``
+  (:func:`jaxslam.grid.export.save_map`);
+* ``arrays.npz`` — the data the figures are drawn from, so that :func:`replot` (``jaxslam
+  plot``) redraws ``trajectory.png`` or ``map_trajectory.png`` and ``health.png``.
+
+Host-side NumPy; matplotlib only inside :func:`replot` (via :mod:`jaxslam.plotting`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
+
+
+def json_default(value):
+    """JSON for NumPy scalars and arrays (anything else as its ``str``)."""
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def write_json(path: Path, payload: dict) -> None:
+    """Write JSON atomically (temporary file, then rename)."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=json_default) + "\n")
+    tmp.replace(path)
+
+
+def write_landmark_outputs(out: Path, result, title: str, comment: str, reference_xy, reference_label: str,
+                           true_landmarks) -> None:
+    """``trajectory.tum``, ``landmarks.csv`` and ``arrays.npz`` of a landmark run.
+
+    Args:
+        result: a :class:`jaxslam.feature.experiment.LandmarkSlamResult`.
+        title: the figures' title; ``comment``: the TUM file's header comment.
+        reference_xy: ``(R, 2)`` reference positions drawn with the trajectory, or None.
+        reference_label: their legend label.
+        true_landmarks: ``(M, 2)`` true landmark positions, or None.
+    """
+    write_trajectory(out, result.times, result.trajectory, comment)
+    with open(out / "landmarks.csv", "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["id", "x_m", "y_m", "cov_xx", "cov_xy", "cov_yy"])
+        for i, (m, c) in enumerate(zip(result.landmark_means, result.landmark_covs)):
+            writer.writerow([i, f"{m[0]:.4f}", f"{m[1]:.4f}", f"{c[0, 0]:.6g}", f"{c[0, 1]:.6g}", f"{c[1, 1]:.6g}"])
+    np.savez_compressed(
+        out / "arrays.npz", kind="landmark", times=result.times, trajectory=result.trajectory,
+        landmark_means=result.landmark_means, landmark_covs=result.landmark_covs,
+        reference_xy=reference_xy if reference_xy is not None else np.zeros((0, 2)),
+        reference_label=reference_label,
+        true_landmarks=true_landmarks if true_landmarks is not None else np.zeros((0, 2)),
+        ess=result.info["ess"], resampled=result.info["resampled"], particles=result.particles,
+        weight_variance=result.info.get("weight_variance", np.zeros(0)),
+        title=title,
+    )
+
+
+def write_trajectory(out: Path, times, trajectory, comment: str) -> None:
+    """``trajectory.tum``."""
+    from jaxslam.metrics.trajectory_io import write_tum
+
+    write_tum(out / "trajectory.tum", times, trajectory, comment=comment)
+
+
+def write_grid_outputs(out: Path, result, title: str) -> None:
+    """``map.pgm``, ``map.yaml``, ``map.png`` and ``arrays.npz`` of a grid run
+    (a :class:`jaxslam.grid.experiment.GridSlamResult`)."""
+    from jaxslam.grid.export import save_map
+
+    save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
+    np.savez_compressed(
+        out / "arrays.npz", kind="laser", times=result.scan_times, trajectory=result.trajectory,
+        log_odds=result.map_log_odds, resolution=result.resolution, origin=np.asarray(result.origin),
+        ess=result.info["ess"], resampled=result.info["resampled"], particles=result.particles,
+        title=title,
+    )
+
+
+def replot(folder: str | Path) -> list[Path]:
+    """Draw the figures of an output folder from its ``arrays.npz``."""
+    from jaxslam import plotting
+
+    folder = Path(folder)
+    arrays_path = folder / "arrays.npz"
+    if not arrays_path.exists():
+        raise DatasetNotFoundError(f"{str(arrays_path)!r} not found: is {str(folder)!r} a `jaxslam run` output folder?")
+    try:
+        data = np.load(arrays_path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise DataFormatError(arrays_path, None, f"cannot read: {err}") from None
+    title = str(data["title"])
+    written = []
+    if str(data["kind"]) == "landmark":
+        fig = plotting.plot_landmark_slam(
+            data["trajectory"], data["landmark_means"], data["landmark_covs"],
+            reference_xy=data["reference_xy"], reference_label=str(data["reference_label"]),
+            true_landmarks=data["true_landmarks"], title=title,
+        )
+        written.append(plotting.save(fig, folder / "trajectory.png"))
+    else:
+        fig = plotting.plot_grid_map(data["log_odds"], float(data["resolution"]), data["origin"],
+                                     trajectory=data["trajectory"], title=title)
+        written.append(plotting.save(fig, folder / "map_trajectory.png"))
+    wv = data["weight_variance"] if "weight_variance" in data and data["weight_variance"].size else None
+    fig = plotting.plot_filter_health(data["ess"], data["resampled"], int(data["particles"]), wv, title=title)
+    written.append(plotting.save(fig, folder / "health.png"))
+    return written
