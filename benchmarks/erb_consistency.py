@@ -57,7 +57,7 @@ def _ensemble(keys, controls, observations, obs_mask, true_landmarks, params, co
     def one(key, controls, observations, obs_mask, landmarks):
         state = feature_filter.init(key, params, config)
         if known_map:
-            n, cap = config.num_particles, config.capacity
+            n = config.num_particles
             count = landmarks.shape[0]
             table = state.landmarks
             means = table.means.at[:, :count].set(jnp.broadcast_to(landmarks, (n, count, 2)))

@@ -51,6 +51,7 @@ __all__ = [
     "export",
     "gmapping",
     "init",
+    "map",
     "matching",
     "save_map",
     "score",

@@ -12,7 +12,6 @@ from jaxslam.core.sigma import UTParams
 from jaxslam.datasets.carmen import select_keyframes
 from jaxslam.datasets.laser_sim import simulate
 from jaxslam.grid import gmapping, srupf
-from jaxslam.grid import driver
 from jaxslam.grid.experiment import best_trajectory
 from jaxslam.grid.filter import best_particle, init
 from jaxslam.grid.paged import PagedLayout, stitch
