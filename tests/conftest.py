@@ -84,3 +84,15 @@ def intel_grid_reference(intel_segment):
     from jaxslam.grid.experiment import run_grid_slam
 
     return run_grid_slam(intel_segment, **INTEL_GRID_OPTIONS)
+
+
+# Notebooks that are experiments rather than walkthroughs: several filters, particle
+# counts and seeds each (about 2-4 minutes apiece on a 2-core CPU). nbmake collects
+# them with the rest; they join the ``slow`` runs (``python -m pytest -m slow``).
+SLOW_NOTEBOOKS = {"grid_particle_sweep.ipynb", "landmark_particle_sweep.ipynb"}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.suffix == ".ipynb" and item.path.name in SLOW_NOTEBOOKS:
+            item.add_marker(pytest.mark.slow)

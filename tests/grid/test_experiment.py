@@ -71,6 +71,7 @@ def _window_relations_error(result, relations):
     return relations_metric(relations, result.scan_times[:end], result.trajectory[:end])
 
 
+@pytest.mark.slow
 def test_fr079_unseen_rotations_need_every_scan():
     """FR079's odometry misses the robot's turns in doorways (scans 783-834: the scans
     turn by +24 and then -17 deg where the odometry says -18 and -3). The dataset's
