@@ -5,6 +5,7 @@ Modules:
 
 * :mod:`~jaxslam.grid.map` — dense grid geometry (:class:`GridSpec`), cell type, readers.
 * :mod:`~jaxslam.grid.paged` — paged maps: tile pool, page tables, copy on write, growth.
+* :mod:`~jaxslam.grid.rays` — the cells each beam crosses (Bresenham), laid out for batching.
 * :mod:`~jaxslam.grid.update` — ray updates of all particles' maps at once.
 * :mod:`~jaxslam.grid.score` — map evidence at beam end points, scan likelihood.
 * :mod:`~jaxslam.grid.matching` — hill climbing (GMapping), the covariance-ellipse
@@ -19,7 +20,7 @@ Modules:
 * :mod:`~jaxslam.grid.experiment` — :func:`run_grid_slam` on a CARMEN log.
 """
 
-from jaxslam.grid import driver, export, filter, gmapping, matching, paged, score, srupf, types, update
+from jaxslam.grid import driver, export, filter, gmapping, matching, paged, rays, score, srupf, types, update
 from jaxslam.grid import map as map
 from jaxslam.grid.filter import best_particle, init
 from jaxslam.grid.types import (
@@ -46,6 +47,7 @@ __all__ = [
     "driver",
     "filter",
     "paged",
+    "rays",
     "types",
     "default_params",
     "export",

@@ -29,7 +29,7 @@ from jaxslam.grid.driver import run_filter
 from jaxslam.grid.filter import best_particle
 from jaxslam.grid.paged import PagedLayout, pool_stats, stitch, window_side
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, Scan, default_params
-from jaxslam.grid.update import required_points
+from jaxslam.grid.rays import required_points
 from jaxslam.metrics.trajectory_io import interpolate_poses, se2_between
 
 ALGORITHMS = algorithms("laser")

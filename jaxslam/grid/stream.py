@@ -51,7 +51,7 @@ from jaxslam.grid import driver, gmapping, srupf
 from jaxslam.grid.experiment import best_trajectory, make_config, map_layout
 from jaxslam.grid.paged import stitch
 from jaxslam.grid.types import GridSlamParams, Odometry, Scan, default_params
-from jaxslam.grid.update import required_points
+from jaxslam.grid.rays import required_points
 
 __all__ = ["StreamingGridSlam", "step_runner"]
 
