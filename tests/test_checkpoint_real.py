@@ -49,7 +49,7 @@ def _arrays(result: LandmarkSlamResult) -> dict[str, np.ndarray]:
     }
     arrays.update({f"info.{name}": value for name, value in result.info.items()})
     state = result.state
-    arrays.update({f"state.{name}": np.asarray(getattr(state, name)) for name in ("pose_means", "pose_sqrts",
+    arrays.update({f"state.{name}": np.asarray(getattr(state, name)) for name in ("poses", "pose_sqrt_covs",
                                                                                   "log_weights")})
     arrays.update({f"state.landmarks.{name}": np.asarray(value) for name, value in state.landmarks._asdict().items()})
     return arrays

@@ -55,7 +55,7 @@ def differentiable_step(
     :func:`jaxslam.feature.filter.step`; returns ``(state, log_likelihood_increment)``
     (0 for a skipped stationary scan or a scan in which every particle failed).
     """
-    dtype = state.pose_means.dtype
+    dtype = state.poses.dtype
     params = feature_filter.cast_params(params, dtype)
     control = jnp.asarray(control, dtype)
     observation = feature_filter.Observation(
@@ -67,7 +67,7 @@ def differentiable_step(
 
     def active_step(state):
         out = jax.vmap(particle_step, (0, 0, 0, 0, None, None, None, None))(
-            particle_keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation, params, config
+            particle_keys, state.poses, state.pose_sqrt_covs, state.landmarks, control, observation, params, config
         )
         any_finite = jnp.any(out.finite)
         # Double where: a failed particle's increment is -inf and its cotangent zero.
@@ -118,7 +118,7 @@ def log_likelihoods(
 
     if checkpoint:
         body = jax.checkpoint(body)
-    dtype = state.pose_means.dtype
+    dtype = state.poses.dtype
     xs = (keys, jnp.asarray(controls, dtype), jnp.asarray(observations, dtype), jnp.asarray(obs_mask, bool))
     _, increments = jax.lax.scan(body, state, xs)
     return increments

@@ -83,8 +83,8 @@ class State(NamedTuple):
     """Particles.
 
     Attributes:
-        pose_means: ``(N, 3)`` pose of each particle (a sample once it was updated).
-        pose_sqrts: ``(N, 3, 3)`` lower factor of the pose covariance accumulated since
+        poses: ``(N, 3)`` pose of each particle (a sample once it was updated).
+        pose_sqrt_covs: ``(N, 3, 3)`` lower factor of the pose covariance accumulated since
             the last sampling (the predicted covariance ``P-bar``).
         log_weights: ``(N,)`` normalised log-weights.
         cumulative_log_likelihood: ``(N,)`` the sum of the particle's log weight
@@ -93,8 +93,8 @@ class State(NamedTuple):
         landmarks: :class:`LandmarkTable` with leading axis ``N``.
     """
 
-    pose_means: Array
-    pose_sqrts: Array
+    poses: Array
+    pose_sqrt_covs: Array
     log_weights: Array
     cumulative_log_likelihood: Array
     landmarks: LandmarkTable
@@ -153,8 +153,8 @@ def init(key: Array, params: Params, config: Config, initial_pose: Array | None 
     n = config.num_particles
     reset = jnp.asarray(params.pose_reset_std, dtype)
     return State(
-        pose_means=jnp.broadcast_to(pose, (n, 3)),
-        pose_sqrts=jnp.broadcast_to(reset * jnp.eye(3, dtype=dtype), (n, 3, 3)),
+        poses=jnp.broadcast_to(pose, (n, 3)),
+        pose_sqrt_covs=jnp.broadcast_to(reset * jnp.eye(3, dtype=dtype), (n, 3, 3)),
         log_weights=jnp.full((n,), -jnp.log(jnp.asarray(n, dtype))),
         cumulative_log_likelihood=jnp.zeros((n,), dtype),
         landmarks=empty_table(config.capacity, dtype, (n,)),
@@ -186,14 +186,14 @@ def _summary(state: State, log_weights: Array) -> tuple[Array, Array, Array]:
     particle nearest the mean, so that the residuals do not wrap); that reference is
     a numerical choice only, not the best particle."""
     weights = jnp.exp(log_weights)
-    ref = state.pose_means[jnp.argmax(log_weights)]
-    dev = jax.vmap(pose_residual, (0, None))(state.pose_means, ref)
+    ref = state.poses[jnp.argmax(log_weights)]
+    dev = jax.vmap(pose_residual, (0, None))(state.poses, ref)
     shift = weights @ dev
     estimate = ref + shift
     estimate = estimate.at[2].set(wrap_angle(estimate[2]))
     dev = dev - shift
     spread = jnp.einsum("m,mi,mj->ij", weights, dev, dev)
-    own = jnp.einsum("m,mij,mkj->ik", weights, state.pose_sqrts, state.pose_sqrts)
+    own = jnp.einsum("m,mij,mkj->ik", weights, state.pose_sqrt_covs, state.pose_sqrt_covs)
     return estimate, spread + own, weights
 
 
@@ -206,7 +206,7 @@ def _finish(
     invalid: tuple[Array, Array],
     observation_mask: Array,
 ) -> tuple[State, Info]:
-    dtype = state.pose_means.dtype
+    dtype = state.poses.dtype
     log_w = normalize_log_weights(state.log_weights)
     estimate, cov, weights = _summary(state, log_w)
     best = best_particle(state)
@@ -306,7 +306,7 @@ def step(
         ``(state, info)``; ``info.ancestors`` are the resampling ancestors ``(N,)``
         (the identity when it did not resample).
     """
-    dtype = state.pose_means.dtype
+    dtype = state.poses.dtype
     params = cast_params(params, dtype)
     control = jnp.asarray(control, dtype)
     observation = Observation(jnp.asarray(observation.values, dtype), jnp.asarray(observation.mask, bool))
@@ -316,7 +316,7 @@ def step(
 
     def particles_step(state, observation):
         return jax.vmap(particle_step, (0, 0, 0, 0, None, None, None, None))(
-            particle_keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation, params, config
+            particle_keys, state.poses, state.pose_sqrt_covs, state.landmarks, control, observation, params, config
         )
 
     def active_step(state):

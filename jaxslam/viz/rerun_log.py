@@ -149,7 +149,7 @@ class RerunLog:
             state = carry[0]
             step = int(done) - 1
             self.at(offset + step, float(times[step]) if step < len(times) else None)
-            self.particles(np.asarray(state.pose_means))
+            self.particles(np.asarray(state.poses))
             best = int(best_particle(state))
             active = np.asarray(state.landmarks.active[best])
             self.landmarks(np.asarray(state.landmarks.means[best])[active], np.asarray(state.landmarks.covs[best])[active])

@@ -150,7 +150,7 @@ def test_no_recompilation_when_only_params_change():
 def test_float32_and_float64(sim_runs, dtype):
     seq = simulate(seed=2, **SIM)
     state, info = _sim_run(seq, params_for(seq, **GATES), dtype)
-    for leaf in (state.pose_means, state.pose_sqrts, state.log_weights, state.landmarks.means, info.pose_estimate):
+    for leaf in (state.poses, state.pose_sqrt_covs, state.log_weights, state.landmarks.means, info.pose_estimate):
         assert leaf.dtype == dtype
     assert np.all(np.isfinite(np.asarray(info.pose_estimate)))
     err = np.linalg.norm(np.asarray(info.pose_estimate)[:, :2] - seq.true_poses[:, :2], axis=1)
@@ -261,7 +261,7 @@ def test_stationary_scans_are_skipped(sim_runs):
     still = dataclasses.replace(seq, controls=seq.controls * np.array([0.0, 1.0, 1.0]))
     state, info = _sim_run(still, params_for(seq, **GATES))
     assert int(state.landmarks.count.sum()) == 0 and not np.any(np.asarray(info.updated))
-    np.testing.assert_array_equal(np.asarray(state.pose_means), 0.0)
+    np.testing.assert_array_equal(np.asarray(state.poses), 0.0)
 
 
 def test_spurious_landmark_is_pruned(sim_runs):

@@ -109,7 +109,7 @@ def test_every_likelihood_underflows_without_nan(sim):
     keys = jax.random.split(jax.random.split(jax.random.PRNGKey(5))[0], CONFIG.num_particles)
     particle_steps = jax.jit(jax.vmap(P.particle_step, (0, 0, 0, 0, None, None, None, None)), static_argnums=7)
     out = particle_steps(
-        keys, state.pose_means, state.pose_sqrts, state.landmarks, control, observation,
+        keys, state.poses, state.pose_sqrt_covs, state.landmarks, control, observation,
         F.cast_params(absurd, dtype), CONFIG,
     )
     assert np.all(np.exp(np.asarray(out.log_weight_increment)) == 0.0)
@@ -175,7 +175,7 @@ def test_an_observation_that_overflows_is_not_stored(sim):
 def _poison(state: F.State, particles, dtype) -> F.State:
     """Give ``particles`` a finite pose factor so large that its square overflows."""
     big = jnp.asarray(1e200 if dtype == np.float64 else 1e20, dtype) * jnp.eye(3, dtype=dtype)
-    return state._replace(pose_sqrts=state.pose_sqrts.at[particles].set(big))
+    return state._replace(pose_sqrt_covs=state.pose_sqrt_covs.at[particles].set(big))
 
 
 def test_a_particle_that_goes_nan_is_reported_and_not_propagated(sim, dtype):
@@ -189,14 +189,14 @@ def test_a_particle_that_goes_nan_is_reported_and_not_propagated(sim, dtype):
     assert float(new.log_weights[0]) == -np.inf  # weight zero: resampling drops it
     assert float(new.cumulative_log_likelihood[0]) == -np.inf  # never the best particle
     assert np.all(np.isfinite(np.asarray(info.pose_estimate))) and np.all(np.isfinite(np.asarray(info.pose_cov)))
-    np.testing.assert_array_equal(new.pose_means[0], state.pose_means[0])  # kept, not propagated
+    np.testing.assert_array_equal(new.poses[0], state.poses[0])  # kept, not propagated
     np.testing.assert_array_equal(new.landmarks.means[0], state.landmarks.means[0])
-    assert not np.array_equal(new.pose_means[1], state.pose_means[1])  # the others moved on
+    assert not np.array_equal(new.poses[1], state.poses[1])  # the others moved on
     # with resampling the failed particle is dropped
     new, info = F.step(jax.random.PRNGKey(5), state, *_inputs(sim, 10, dtype), params._replace(
         resample_threshold=1.01), CONFIG)
     assert bool(info.resampled) and _all_finite(new)
-    assert np.all(np.abs(np.asarray(new.pose_sqrts)) < 1.0)
+    assert np.all(np.abs(np.asarray(new.pose_sqrt_covs)) < 1.0)
 
 
 def test_when_every_particle_fails_the_step_changes_nothing(sim, dtype):
@@ -329,7 +329,7 @@ def test_full_victoria_park_run_in_float32_has_no_nan(victoria_park, algorithm):
     result = run_landmark_slam(victoria_park, algorithm, particles=10, seed=0, progress=False, dtype=jnp.float32)
     assert result.steps == 7249
     state = result.state
-    assert state.pose_means.dtype == np.float32
+    assert state.poses.dtype == np.float32
     assert _all_finite(state)
     covs = state.landmarks.covs[state.landmarks.active]
     _assert_pd(covs)

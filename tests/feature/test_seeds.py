@@ -58,7 +58,7 @@ def test_padding_slots_change_nothing():
     reference, ref_infos = _step_states(0)
     for extra in (8,):
         state, infos = _step_states(extra)
-        np.testing.assert_allclose(state.pose_means, reference.pose_means, atol=1e-5)
+        np.testing.assert_allclose(state.poses, reference.poses, atol=1e-5)
         np.testing.assert_allclose(state.log_weights, reference.log_weights, atol=1e-4)
         np.testing.assert_allclose(state.landmarks.means, reference.landmarks.means, atol=1e-4)
         np.testing.assert_array_equal(state.landmarks.count, reference.landmarks.count)
