@@ -54,9 +54,13 @@ def _tree_pad(xs, length: int, total: int):
 def make_chunk_runner(step_fn: StepFn, donate: bool = True):
     """A jitted ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk."""
 
+    # Jitted so that it is traced once: ``eval_shape`` below and the ``cond`` branch
+    # reuse the same trace (the step is the bulk of the tracing time of a run).
+    step_jit = jax.jit(step_fn)
+
     def run_chunk(carry, xs_chunk, valid):
         x0 = jax.tree_util.tree_map(lambda leaf: leaf[0], xs_chunk)
-        y_shape = jax.eval_shape(step_fn, carry, x0)[1]
+        y_shape = jax.eval_shape(step_jit, carry, x0)[1]
 
         def skip(c, _x):
             zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), y_shape)
@@ -64,7 +68,7 @@ def make_chunk_runner(step_fn: StepFn, donate: bool = True):
 
         def body(c, inputs):
             x, ok = inputs
-            return jax.lax.cond(ok, step_fn, skip, c, x)
+            return jax.lax.cond(ok, step_jit, skip, c, x)
 
         return jax.lax.scan(body, carry, (xs_chunk, valid))
 
