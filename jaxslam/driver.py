@@ -38,6 +38,7 @@ from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from jaxslam.progress import make_chunk_runner
@@ -100,8 +101,12 @@ def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None):
 
 
 def best_particle(state) -> Array:
-    """Index of the particle with the largest accumulated log-likelihood (see above)."""
-    return jnp.argmax(state.cumulative_log_likelihood)
+    """Index of the particle with the largest accumulated log-likelihood (see above); on
+    the host (NumPy, no JAX program) when the state holds NumPy arrays."""
+    scores = state.cumulative_log_likelihood
+    if isinstance(scores, np.ndarray):
+        return np.argmax(scores)
+    return jnp.argmax(scores)
 
 
 __all__ = ["best_particle", "chunk_runner", "num_steps", "scan_runner", "scan_steps", "step_keys"]

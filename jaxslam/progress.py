@@ -38,15 +38,24 @@ class Timing:
         return self.steps / self.wall_s if self.wall_s > 0 else float("inf")
 
 
+def _host(leaf):
+    """``leaf`` as a NumPy array, so that slicing and padding it in the host loop runs no
+    JAX program (each eager op is a program to compile or load); typed PRNG key arrays,
+    which NumPy cannot hold, stay JAX arrays."""
+    if isinstance(leaf, jax.Array) and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+        return leaf
+    return np.asarray(leaf)
+
+
 def _tree_pad(xs, length: int, total: int):
     """Pad every leaf of ``xs`` along axis 0 from ``length`` to ``total`` (repeat last)."""
     if total == length:
         return xs
 
     def pad(leaf):
-        leaf = jnp.asarray(leaf)
-        extra = jnp.repeat(leaf[-1:], total - length, axis=0)
-        return jnp.concatenate([leaf, extra], axis=0)
+        lib = np if isinstance(leaf, np.ndarray) else jnp
+        extra = lib.repeat(leaf[-1:], total - length, axis=0)
+        return lib.concatenate([leaf, extra], axis=0)
 
     return jax.tree_util.tree_map(pad, xs)
 
@@ -171,7 +180,7 @@ def run_scan_chunked(
     if not 0 <= start <= total:
         raise ValueError(f"start={start} outside 0..{total}")
     xs_all = xs
-    xs = jax.tree_util.tree_map(lambda leaf: leaf[start:], xs)
+    xs = jax.tree_util.tree_map(lambda leaf: _host(leaf)[start:], xs)
     remaining = total - start
     chunk = max(1, min(chunk, max(remaining, 1)))
     padded_len = -(-remaining // chunk) * chunk if remaining else 0
@@ -186,7 +195,7 @@ def run_scan_chunked(
         return carry, ys, Timing(0.0, 0.0, 0)
 
     xs = _tree_pad(xs, remaining, padded_len)
-    valid = jnp.arange(padded_len) < remaining
+    valid = np.arange(padded_len) < remaining
 
     def chunk_inputs(i):
         sl = slice(i * chunk, (i + 1) * chunk)
@@ -227,12 +236,15 @@ def run_scan_chunked(
     ys = _stack(outputs, done - start)
     if prior_leaves is not None:
         treedef = jax.tree_util.tree_structure(ys)
-        leaves = [jnp.concatenate([jnp.asarray(p), c], 0) for p, c in zip(prior_leaves, jax.tree_util.tree_leaves(ys))]
+        leaves = [jax.device_put(np.concatenate([p, np.asarray(c)], 0))
+                  for p, c in zip(prior_leaves, jax.tree_util.tree_leaves(ys))]
         ys = jax.tree_util.tree_unflatten(treedef, leaves)
     return carry, ys, Timing(compile_s, wall_s, done - start)
 
 
 def _stack(outputs, length: int):
-    """Concatenate per-chunk outputs and drop the padding steps."""
-    return jax.tree_util.tree_map(lambda *parts: jnp.concatenate(parts, 0)[:length], *outputs)
+    """Concatenate per-chunk outputs and drop the padding steps (on the host: no JAX
+    program per output leaf; the result is a JAX array as before)."""
+    return jax.tree_util.tree_map(
+        lambda *parts: jax.device_put(np.concatenate([np.asarray(part) for part in parts], 0)[:length]), *outputs)
 

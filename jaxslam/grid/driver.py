@@ -135,7 +135,7 @@ def run_filter(
         (state, params), ys, timing = run_scan_chunked(
             None, (state, params), xs, chunk=chunk, desc=desc, progress=progress,
             runner=chunk_runner(step_fn, config), checkpoint=checkpoint, start=start,
-            stop=lambda carry: bool(carry[0].status.code != 0), prior=prior,
+            stop=lambda carry: int(carry[0].status.code) != 0, prior=prior,
         )
         if checkpoint is not None:
             checkpoint.resume = False

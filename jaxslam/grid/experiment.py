@@ -282,21 +282,24 @@ def run_grid_slam(
     module = gmapping if algorithm == "gmapping" else srupf
 
     offsets = np.asarray(log.angle_offsets[keyframes], np.float64)
-    first = Scan(jnp.asarray(ranges[0], dtype), jnp.asarray(valid[0]), jnp.asarray(offsets[0], dtype))
+    # NumPy inputs: the jitted init and chunk runner take them as they are, whereas
+    # jnp.asarray would run (and compile or load) a conversion program for each.
+    real = np.dtype(dtype)
+    first = Scan(np.asarray(ranges[0], real), np.asarray(valid[0]), np.asarray(offsets[0], real))
     substeps = np.diff(keyframes).astype(np.float64)
-    controls = Odometry(jnp.asarray(controls, dtype), jnp.asarray(substeps, dtype))
-    observations = Scan(jnp.asarray(ranges[1:], dtype), jnp.asarray(valid[1:]), jnp.asarray(offsets[1:], dtype))
+    controls = Odometry(np.asarray(controls, real), np.asarray(substeps, real))
+    observations = Scan(np.asarray(ranges[1:], real), np.asarray(valid[1:]), np.asarray(offsets[1:], real))
     unit = float(prm.log_odds_unit)
     params_record = {k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"}
     state, ys, cfg, stats = run_filter(
-        module.step, jax.random.PRNGKey(seed), prm, cfg, first, jnp.asarray(odom[0], dtype), controls, observations,
+        module.step, jax.random.PRNGKey(seed), prm, cfg, first, np.asarray(odom[0], real), controls, observations,
         chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress, checkpoint=checkpoint,
     )
-    best = int(best_particle(state))
+    best = int(best_particle(jax.tree_util.tree_map(np.asarray, state)))
     kf_poses = best_trajectory(ys["poses"], ys["ancestors"], best)
     kf_poses = np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0)
     trajectory = interpolate_poses(keyframes, kf_poses, log.odom_poses)
-    cells, origin = stitch(state.maps.pool, state.maps.tables[best], cfg.layout)
+    cells, origin = stitch(state.maps.pool, np.asarray(state.maps.tables)[best], cfg.layout)
     grid = cells.astype(np.float32) * unit
     info = {k: np.asarray(v) for k, v in ys.items() if k not in ("poses", "ancestors")}
     return GridSlamResult(
