@@ -16,6 +16,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Ellipse  # noqa: E402
 
+from jaxslam.grid.export import row_blocks  # noqa: E402
+
 
 def save(fig, path: str | Path, dpi: int = 130) -> Path:
     """Save ``fig`` as PNG and close it."""
@@ -84,10 +86,9 @@ def plot_grid_map(log_odds, resolution: float, origin, trajectory=None, title: s
     log_odds = np.asarray(log_odds)
     observed_rows = np.zeros(log_odds.shape[0], bool)
     observed_cols = np.zeros(log_odds.shape[1], bool)
-    step = max(1, (1 << 22) // max(log_odds.shape[1], 1))  # rows per block: bounded temporaries
-    for r0 in range(0, log_odds.shape[0], step):
-        observed = np.abs(log_odds[r0 : r0 + step]) > 1e-6
-        observed_rows[r0 : r0 + step] = observed.any(1)
+    for r0, r1 in row_blocks(log_odds.shape[0], log_odds.shape[1]):
+        observed = np.abs(log_odds[r0:r1]) > 1e-6
+        observed_rows[r0:r1] = observed.any(1)
         observed_cols |= observed.any(0)
     if observed_rows.any():
         pad = int(np.ceil(1.0 / resolution))
@@ -104,9 +105,8 @@ def plot_grid_map(log_odds, resolution: float, origin, trajectory=None, title: s
     k = max(1, -(-max(h, w) // _MAX_FIGURE_CELLS))
     hk, wk = -(-h // k) * k, -(-w // k) * k
     free = np.empty((hk // k, wk // k), np.float32)
-    group = k * max(1, (1 << 22) // (wk * k))  # rows per block, a multiple of k
-    for r0 in range(0, h, group):
-        block = np.asarray(log_odds[r0 : r0 + group], np.float32)
+    for r0, r1 in row_blocks(h, wk, multiple=k):
+        block = np.asarray(log_odds[r0:r1], np.float32)
         rows = -(-block.shape[0] // k) * k
         block = np.pad(block, ((0, rows - block.shape[0]), (0, wk - w)), mode="edge")
         with np.errstate(over="ignore"):

@@ -295,11 +295,12 @@ def run_grid_slam(
         module.step, jax.random.PRNGKey(seed), prm, cfg, first, np.asarray(odom[0], real), controls, observations,
         chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress, checkpoint=checkpoint,
     )
-    best = int(best_particle(jax.tree_util.tree_map(np.asarray, state)))
+    state = jax.tree_util.tree_map(np.asarray, state)  # once, to the host: best particle, map, result
+    best = int(best_particle(state))
     kf_poses = best_trajectory(ys["poses"], ys["ancestors"], best)
     kf_poses = np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0)
     trajectory = interpolate_poses(keyframes, kf_poses, log.odom_poses)
-    cells, origin = stitch(state.maps.pool, np.asarray(state.maps.tables)[best], cfg.layout)
+    cells, origin = stitch(state.maps.pool, state.maps.tables[best], cfg.layout)
     grid = cells.astype(np.float32) * unit
     info = {k: np.asarray(v) for k, v in ys.items() if k not in ("poses", "ancestors")}
     return GridSlamResult(
@@ -320,7 +321,7 @@ def run_grid_slam(
         resamplings=int(np.sum(info["resampled"])),
         config=cfg,
         params=params_record,
-        state=jax.tree_util.tree_map(np.asarray, state),
+        state=state,
         keyframe_rule=rule,
         map_stats=pool_stats(state.maps, cfg.layout),
         growths=stats.growths,

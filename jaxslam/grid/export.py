@@ -28,7 +28,16 @@ from pathlib import Path
 import numpy as np
 
 OCCUPIED, FREE, UNKNOWN = 0, 254, 205
-_BLOCK_CELLS = 1 << 22  # cells converted per block in occupancy_image
+_BLOCK_CELLS = 1 << 22  # about this many cells per block of rows (bounded temporaries)
+
+
+def row_blocks(height: int, row_cells: int, multiple: int = 1):
+    """``(r0, r1)`` ranges of rows of about :data:`_BLOCK_CELLS` values each (``row_cells``
+    per row), each a multiple of ``multiple`` rows but the last: big maps are converted,
+    drawn and encoded block by block, never as one full-size temporary."""
+    step = multiple * max(1, _BLOCK_CELLS // max(row_cells * multiple, 1))
+    for r0 in range(0, height, step):
+        yield r0, min(r0 + step, height)
 
 
 def occupancy_image(log_odds: np.ndarray, occupied_thresh: float = 0.65, free_thresh: float = 0.196) -> np.ndarray:
@@ -49,9 +58,8 @@ def occupancy_image(log_odds: np.ndarray, occupied_thresh: float = 0.65, free_th
     free_lo = math.log(free_thresh / (1.0 - free_thresh))
     # Blocks of rows keep the float64 temporaries small (a 5000 x 7700 map would
     # otherwise need about 1 GB of them); the image is written upside down directly.
-    rows = max(1, _BLOCK_CELLS // max(src.shape[1], 1))
-    for r0 in range(0, h, rows):
-        lo = src[r0 : r0 + rows].astype(np.float64)
+    for r0, r1 in row_blocks(h, src.shape[1]):
+        lo = src[r0:r1].astype(np.float64)
         block = np.full(lo.shape, UNKNOWN, np.uint8)
         with np.errstate(invalid="ignore"):
             block[lo > occupied_lo] = OCCUPIED
@@ -127,9 +135,7 @@ def write_png(
         mark_rows, mark_cols = mark_rows[order], mark_cols[order]
     compressor = zlib.compressobj(compress_level)
     pieces = []
-    block = max(1, (1 << 22) // max(4 * width + 1, 1))
-    for r0 in range(0, height, block):
-        r1 = min(r0 + block, height)
+    for r0, r1 in row_blocks(height, 4 * width + 1):
         rows = np.empty((r1 - r0, 1 + 4 * width), np.uint8)
         rows[:, 0] = 0  # filter type None
         pixels = rows[:, 1:].reshape(r1 - r0, width, 4)
@@ -213,6 +219,7 @@ __all__ = [
     "UNKNOWN",
     "occupancy_image",
     "read_pgm",
+    "row_blocks",
     "save_map",
     "write_map_yaml",
     "write_pgm",
