@@ -28,7 +28,9 @@ arbitrary particle, and the grid filters temper their weights (``weight_gain``).
 
 **Runners.** :func:`chunk_runner` is the jitted chunk runner of a ``step`` under a
 static config, cached per ``(step, config, summary)``: the CLI, the notebooks and the
-benchmarks run through it, so a sweep over ``Params`` (traced) never recompiles.
+benchmarks run through it, so a sweep over ``Params`` (traced) never recompiles. With
+the compilation cache on, the compiled runner is also kept on disk
+(:mod:`jaxslam.executables`): a later process loads it without tracing.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from jaxslam.executables import runner_tag
 from jaxslam.progress import make_chunk_runner
 
 
@@ -97,7 +100,7 @@ def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None):
         state, info = step_fn(key, state, control, observation, params, config)
         return (state, params), info if summary is None else summary(info)
 
-    return make_chunk_runner(body)
+    return make_chunk_runner(body, tag=runner_tag(step_fn, config, summary, donate=True))
 
 
 def best_particle(state) -> Array:

@@ -22,6 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.executables import compile_runner
+
 StepFn = Callable[[Any, Any], tuple[Any, Any]]
 
 
@@ -60,8 +62,12 @@ def _tree_pad(xs, length: int, total: int):
     return jax.tree_util.tree_map(pad, xs)
 
 
-def make_chunk_runner(step_fn: StepFn, donate: bool = True):
-    """A jitted ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk."""
+def make_chunk_runner(step_fn: StepFn, donate: bool = True, tag: tuple | None = None):
+    """A jitted ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk.
+
+    ``tag`` (from :func:`jaxslam.executables.runner_tag`) names everything besides the
+    arguments that determines the program; with it the compiled runner is kept on disk
+    next to the compilation cache (:mod:`jaxslam.executables`)."""
 
     # Jitted so that it is traced once: ``eval_shape`` below and the ``cond`` branch
     # reuse the same trace (the step is the bulk of the tracing time of a run).
@@ -81,7 +87,9 @@ def make_chunk_runner(step_fn: StepFn, donate: bool = True):
 
         return jax.lax.scan(body, carry, (xs_chunk, valid))
 
-    return jax.jit(run_chunk, donate_argnums=(0,) if donate else ())
+    runner = jax.jit(run_chunk, donate_argnums=(0,) if donate else ())
+    runner.jaxslam_tag = tag
+    return runner
 
 
 class ProgressBar:
@@ -204,9 +212,9 @@ def run_scan_chunked(
     xs0, valid0 = chunk_inputs(0)
     log(f"{desc}: compiling (one time) ...", progress)
     t0 = time.perf_counter()
-    compiled = runner.lower(carry, xs0, valid0).compile()
+    compiled, loaded = compile_runner(runner, carry, xs0, valid0)
     compile_s = time.perf_counter() - t0
-    log(f"{desc}: compiled in {compile_s:.1f} s", progress)
+    log(f"{desc}: {'loaded' if loaded else 'compiled'} in {compile_s:.1f} s", progress)
 
     bar = ProgressBar(total, desc, unit, progress, initial=start)
     outputs = []

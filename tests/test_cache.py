@@ -48,8 +48,12 @@ print(json.dumps({"cache": None if path is None else str(path), "counts": counte
 
 
 def _run(args: list[str], env_extra: dict[str, str]) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(ROOT), **env_extra}
-    proc = subprocess.run([sys.executable, "-c", PROGRAM, *args], capture_output=True, text=True, env=env,
+    return _run_program(PROGRAM, args, env_extra)
+
+
+def _run_program(program: str, args: list[str], env_extra: dict[str, str] | None = None) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **(env_extra or {})}
+    proc = subprocess.run([sys.executable, "-c", program, *args], capture_output=True, text=True, env=env,
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -136,3 +140,84 @@ def test_unusable_cache_folder(tmp_path, monkeypatch, capsys):
     args.cache_dir = blocker / "sub"
     with pytest.raises(cli.CliError, match="cannot create"):
         cli.cmd_run(args)
+
+
+# A chunk runner (jaxslam.progress) with a tag, compiled through jaxslam.executables:
+# the first process stores the lowered program, a later one loads it without tracing.
+EXPORT_PROGRAM = r"""
+import json, sys
+from jaxslam.cache import enable_compilation_cache
+enable_compilation_cache(sys.argv[1])
+import jax, jax.numpy as jnp
+from jaxslam.core import se2
+from jaxslam.executables import compile_runner, entry_path
+from jaxslam.progress import make_chunk_runner
+
+def step(carry, x):
+    poses, total = carry
+    key, control = x
+    noise = 0.05 * jax.random.normal(key, poses.shape, poses.dtype)
+    poses = jax.vmap(se2.compose)(poses, noise + control)
+    return (poses, total + jnp.sum(poses[:, 0])), poses.mean(0)
+
+def carry():
+    return jnp.zeros((16, 3), jnp.float32), jnp.zeros((), jnp.float32)
+
+xs = (jax.random.split(jax.random.key(5), 8), jnp.tile(jnp.array([0.1, 0.0, 0.02], jnp.float32), (8, 1)))
+valid = jnp.arange(8) < 6
+runner = make_chunk_runner(step, tag=("test-export", "v1", True))
+compiled, loaded = compile_runner(runner, carry(), xs, valid)
+(poses, total), means = compiled(carry(), xs, valid)
+(poses_direct, total_direct), means_direct = make_chunk_runner(step)(carry(), xs, valid)
+print(json.dumps({"loaded": loaded, "entry": str(entry_path(__import__("pathlib").Path(sys.argv[1]), runner.jaxslam_tag, (carry(), xs, valid))),
+                  "result": [poses.tobytes().hex(), total.tobytes().hex(), means.tobytes().hex()],
+                  "direct": [poses_direct.tobytes().hex(), total_direct.tobytes().hex(), means_direct.tobytes().hex()]}))
+"""
+
+
+def test_exported_chunk_runner_is_stored_loaded_and_bit_identical(tmp_path):
+    """Cold: stored, not loaded; warm: loaded from disk; an unreadable entry is a miss
+    and is replaced; every time the result equals the directly jitted runner's."""
+    cache = tmp_path / "cache"
+    runs = []
+    for _ in range(2):
+        runs.append(_run_program(EXPORT_PROGRAM, [str(cache)]))
+    entry = Path(runs[0]["entry"])
+    assert entry.parent == cache / "exports" and entry.exists()
+    entry.write_bytes(b"truncated")
+    runs.append(_run_program(EXPORT_PROGRAM, [str(cache)]))
+    assert [run["loaded"] for run in runs] == [False, True, False]
+    assert entry.read_bytes() != b"truncated"
+    for run in runs:
+        assert run["result"] == run["direct"] == runs[0]["result"]
+
+
+def test_export_entry_depends_on_source_tag_and_shapes(monkeypatch, tmp_path):
+    """A stale entry is never used: the file name changes with the jaxslam sources, the
+    runner's tag and the arguments' shapes and dtypes."""
+    import jax.numpy as jnp
+
+    from jaxslam import executables
+
+    args = (jnp.zeros((4, 3), jnp.float32), jnp.zeros(2, jnp.int32))
+    base = executables.entry_path(tmp_path, ("t", 1), args)
+    assert base == executables.entry_path(tmp_path, ("t", 1), args)
+    assert base != executables.entry_path(tmp_path, ("t", 2), args)
+    assert base != executables.entry_path(tmp_path, ("t", 1), (jnp.zeros((5, 3), jnp.float32), args[1]))
+    assert base != executables.entry_path(tmp_path, ("t", 1), (args[0].astype(jnp.float16), args[1]))
+    assert base != executables.entry_path(tmp_path, ("t", 1), [args[0], args[1]])  # tree structure
+    monkeypatch.setattr(executables, "source_digest", lambda: "an edited library")
+    assert base != executables.entry_path(tmp_path, ("t", 1), args)
+
+
+def test_runner_tag_only_for_library_functions():
+    """Steps outside jaxslam (their source is not hashed) get no tag and are not stored."""
+    from jaxslam.executables import runner_tag
+    from jaxslam.grid import driver, srupf
+
+    config = ("a config",)
+    assert runner_tag(srupf.step, config, driver.summarise, True)[1:3] == (
+        "jaxslam.grid.srupf:step", "jaxslam.grid.driver:summarise")
+    assert runner_tag(lambda *a: a, config, None, True) is None
+    assert runner_tag(srupf.step, config, lambda info: info, True) is None
+    assert runner_tag(srupf.step, object(), None, True) is None  # repr holds an address

@@ -1,0 +1,190 @@
+"""Traced and lowered chunk runners kept on disk, so that a warm run does not trace.
+
+JAX's persistent compilation cache (:mod:`jaxslam.cache`) saves XLA's work, but each
+process still traces the filter's step in Python and lowers it to StableHLO before it
+can look the program up: seconds for the grid filters (about 5 s of the 6 s of
+``compile_s`` of a warm Intel run on a loaded 2-core machine), paid by every run. This
+module stores the lowered chunk runner (a :class:`jax.export.Exported`, pickled) in the
+subfolder ``exports`` of the compilation-cache folder; a later process loads it, wraps
+it in ``jax.jit`` (the carry donated as before) and gets XLA's executable from the
+compilation cache, without tracing the step. The result is bit for bit that of the
+directly jitted runner (``tests/test_cache.py``).
+
+Why not the compiled executable itself: on the CPU backend
+:mod:`jax.experimental.serialize_executable` round-trips it, but running the loaded
+grid runner fails (``NOT_FOUND: Function wrapped_broadcast.1 not found``, jax 0.10.2).
+Why pickle and not ``Exported.serialize``: the latter needs the ``flatbuffers``
+package; the pickle leaves out the VJP rule (a local function, not needed to run).
+
+An entry is used only when everything that determines the program is equal; its file
+name is the SHA-256 of
+
+* the bytes of every ``.py`` file of the installed ``jaxslam`` package (any edit to
+  the library invalidates every entry);
+* the versions of ``jax`` and ``jaxlib``, the backend platform and its version, the
+  devices' kinds, JAX's trace context (x64, matmul precision, ...) and ``XLA_FLAGS``;
+* the runner's tag: the step function and the summary named as module attributes of
+  ``jaxslam`` (see :func:`function_name`), the type and ``repr`` of the static
+  config, whether the carry is donated;
+* the tree structure, shapes, dtypes and weak types of the arguments.
+
+A runner whose step is not a ``jaxslam`` module attribute (a lambda, a closure built by
+a caller, user code) gets no tag and is never stored: its source is not hashed. An
+entry that cannot be read (truncated, from another build) is ignored and replaced.
+Like the compilation cache, the folder holds executable code: keep it private.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import os
+import pickle
+import sys
+from pathlib import Path
+
+__all__ = ["compile_runner", "function_name", "runner_tag", "source_digest"]
+
+SUBFOLDER = "exports"
+
+
+@functools.lru_cache(maxsize=1)
+def source_digest() -> str:
+    """SHA-256 of the paths and bytes of every ``.py`` file of the ``jaxslam`` package."""
+    root = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(b"\0")
+        digest.update(path.read_bytes())
+        digest.update(b"\0")
+    return digest.hexdigest()
+
+
+def function_name(fn) -> str | None:
+    """``"module:attribute"`` under which ``fn`` itself is a ``jaxslam`` module attribute
+    (the smallest such name, so it does not depend on import order), or None."""
+    if fn is None:
+        return "None"
+    names = [
+        f"{module_name}:{attribute}"
+        for module_name, module in list(sys.modules.items())
+        if module is not None and (module_name == "jaxslam" or module_name.startswith("jaxslam."))
+        for attribute, value in list(vars(module).items())
+        if value is fn
+    ]
+    return min(names) if names else None
+
+
+def runner_tag(step_fn, config, summary, donate: bool) -> tuple | None:
+    """What identifies a chunk runner besides its arguments, or None if it cannot be
+    stored (a step or summary outside ``jaxslam``, a config whose repr holds an address)."""
+    step_name, summary_name = function_name(step_fn), function_name(summary)
+    text = repr(config)
+    if step_name is None or summary_name is None or " at 0x" in text:
+        return None
+    config_type = f"{type(config).__module__}.{type(config).__qualname__}"
+    return ("chunk_runner", step_name, summary_name, config_type, text, bool(donate))
+
+
+def _environment() -> tuple:
+    import jax
+    import jaxlib
+    from jax._src import config as jax_config
+
+    backend = jax.devices()[0].client
+    return (
+        jax.__version__, jaxlib.__version__, backend.platform, backend.platform_version,
+        tuple(device.device_kind for device in jax.devices()),
+        _stable(jax_config.trace_context()), os.environ.get("XLA_FLAGS", ""),
+    )
+
+
+def _stable(context) -> str:
+    """``repr`` of JAX's trace context with objects that print their address (the empty
+    axis environment outside a trace) named by their type."""
+    items = context if isinstance(context, tuple) else (context,)
+    return repr(tuple(type(item).__qualname__ if " at 0x" in repr(item) else item for item in items))
+
+
+def _arguments(args) -> tuple:
+    import jax
+
+    leaves, treedef = jax.tree_util.tree_flatten(args)
+    avals = tuple(
+        (tuple(leaf.shape), str(leaf.dtype), bool(getattr(leaf, "weak_type", False)))
+        for leaf in map(jax.typeof, leaves)
+    )
+    return (str(treedef), avals)
+
+
+def entry_path(folder: Path, tag: tuple, args) -> Path:
+    """The file of the runner ``tag`` compiled for ``args`` (see the module docstring)."""
+    key = repr((source_digest(), _environment(), tag, _arguments(args)))
+    return folder / SUBFOLDER / (hashlib.sha256(key.encode()).hexdigest() + ".pkl")
+
+
+def compile_runner(runner, *args):
+    """``runner.lower(*args).compile()``, with the traced and lowered program loaded from
+    or stored in the exports folder when the compilation cache is on and ``runner`` has
+    a ``jaxslam_tag``.
+
+    Returns:
+        ``(compiled, loaded)``: a callable with ``runner``'s signature and whether its
+        program came from disk (XLA's part then comes from the compilation cache).
+    """
+    import jax
+
+    tag = getattr(runner, "jaxslam_tag", None)
+    folder = jax.config.jax_compilation_cache_dir
+    if tag is None or folder is None:
+        return runner.lower(*args).compile(), False
+    leaves, in_tree = jax.tree_util.tree_flatten(args)
+    path = entry_path(Path(folder), tag, args)
+    exported = out_tree = None
+    if path.exists():
+        try:
+            exported, out_tree = pickle.loads(path.read_bytes())
+        except Exception:  # noqa: BLE001 - an unreadable entry is only a cache miss
+            exported = None
+    loaded = exported is not None
+    if not loaded:
+        shapes = {}
+
+        def flat(*flat_args):
+            outputs = runner(*jax.tree_util.tree_unflatten(in_tree, flat_args))
+            flat_outputs, shapes["out_tree"] = jax.tree_util.tree_flatten(outputs)
+            return flat_outputs
+
+        try:
+            exported = jax.export.export(jax.jit(flat))(*leaves)
+            out_tree = shapes["out_tree"]
+            # Pickled rather than ``Exported.serialize`` (which needs ``flatbuffers``);
+            # the VJP rule is a local function and not needed to run the program.
+            _store(path, pickle.dumps((dataclasses.replace(exported, _get_vjp=None), out_tree)))
+        except (ValueError, NotImplementedError, TypeError, pickle.PicklingError):
+            return runner.lower(*args).compile(), False
+    donate = tuple(range(len(jax.tree_util.tree_leaves(args[0])))) if tag[-1] else ()
+    try:
+        compiled = jax.jit(exported.call, donate_argnums=donate).lower(*leaves).compile()
+    except Exception:  # noqa: BLE001 - a stored program that does not fit is only a miss
+        if not loaded:
+            raise
+        return runner.lower(*args).compile(), False
+
+    def call(*call_args):
+        return jax.tree_util.tree_unflatten(out_tree, compiled(*jax.tree_util.tree_leaves(call_args)))
+
+    return call, loaded
+
+
+def _store(path: Path, blob: bytes) -> None:
+    """Write ``blob`` to ``path`` atomically; a read-only folder only means no storing."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        partial.write_bytes(blob)
+        os.replace(partial, path)
+    except OSError:
+        pass
