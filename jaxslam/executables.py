@@ -77,15 +77,17 @@ def function_name(fn) -> str | None:
     return min(names) if names else None
 
 
-def runner_tag(step_fn, config, summary, donate: bool) -> tuple | None:
-    """What identifies a chunk runner besides its arguments, or None if it cannot be
-    stored (a step or summary outside ``jaxslam``, a config whose repr holds an address)."""
+def runner_tag(step_fn, config, summary, donate: bool, kind: str = "chunk_runner") -> tuple | None:
+    """What identifies a chunk runner (or another ``kind`` of program made of ``step_fn``
+    and a static ``config``) besides its arguments, or None if it cannot be stored (a
+    step or summary outside ``jaxslam``, a config whose repr holds an address). The
+    last element says whether the first argument is donated."""
     step_name, summary_name = function_name(step_fn), function_name(summary)
     text = repr(config)
     if step_name is None or summary_name is None or " at 0x" in text:
         return None
     config_type = f"{type(config).__module__}.{type(config).__qualname__}"
-    return ("chunk_runner", step_name, summary_name, config_type, text, bool(donate))
+    return (kind, step_name, summary_name, config_type, text, bool(donate))
 
 
 def _environment() -> tuple:
@@ -126,22 +128,34 @@ def entry_path(folder: Path, tag: tuple, args) -> Path:
 
 
 def compile_runner(runner, *args):
-    """``runner.lower(*args).compile()``, with the traced and lowered program loaded from
-    or stored in the exports folder when the compilation cache is on and ``runner`` has
-    a ``jaxslam_tag``.
+    """``runner.lower(*args).compile()``, kept per argument shapes on ``runner`` for the
+    rest of the process, and with the traced and lowered program loaded from or stored
+    in the exports folder when the compilation cache is on and ``runner`` has a
+    ``jaxslam_tag``.
 
     Returns:
-        ``(compiled, loaded)``: a callable with ``runner``'s signature and whether its
-        program came from disk (XLA's part then comes from the compilation cache).
+        ``(compiled, loaded)``: a callable with ``runner``'s signature and whether it
+        was not traced here (loaded from disk, or compiled earlier in this process).
     """
     import jax
 
     tag = getattr(runner, "jaxslam_tag", None)
     folder = jax.config.jax_compilation_cache_dir
+    memo = runner.__dict__.setdefault("jaxslam_compiled", {})
+    key = (folder, _arguments(args))
+    if key in memo:
+        return memo[key], True
     if tag is None or folder is None:
-        return runner.lower(*args).compile(), False
-    leaves, in_tree = jax.tree_util.tree_flatten(args)
-    path = entry_path(Path(folder), tag, args)
+        memo[key], loaded = runner.lower(*args).compile(), False
+    else:
+        leaves, in_tree = jax.tree_util.tree_flatten(args)
+        memo[key], loaded = _compile(runner, tag, entry_path(Path(folder), tag, args), args, leaves, in_tree)
+    return memo[key], loaded
+
+
+def _compile(runner, tag, path: Path, args, leaves, in_tree):
+    import jax
+
     exported = out_tree = None
     if path.exists():
         try:

@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,6 +27,7 @@ import numpy as np
 
 from jaxslam.driver import chunk_runner as shared_chunk_runner
 from jaxslam.driver import step_keys
+from jaxslam.executables import compile_runner, runner_tag
 from jaxslam.grid.filter import init, reset_status
 from jaxslam.grid.paged import PagedLayout, grow
 from jaxslam.grid.types import GridSlamConfig
@@ -83,10 +85,24 @@ def _grown(state, layout: PagedLayout, stats: RunStats, step: int, progress: boo
     return reset_status(state._replace(maps=maps)), new_layout
 
 
+@functools.lru_cache(maxsize=32)
+def _init_runner(config: GridSlamConfig):
+    jitted = jax.jit(lambda key, params, scan, pose: init(key, params, config, scan, pose))
+    jitted.jaxslam_tag = runner_tag(init, config, None, donate=False, kind="init")
+    return jitted
+
+
+def _init(key, params, config: GridSlamConfig, first_scan, initial_pose):
+    """``init``, its lowered program kept on disk like the chunk runner's
+    (:mod:`jaxslam.executables`): a warm run does not trace it."""
+    args = (key, params, first_scan, initial_pose)
+    return compile_runner(_init_runner(config), *args)[0](*args)
+
+
 def init_state(key, params, config: GridSlamConfig, first_scan, initial_pose, stats: RunStats, progress=False):
     """``init`` with the layout grown until the first scan fits: ``(state, config)``."""
     while True:
-        state = init(key, params, config, first_scan, initial_pose)
+        state = _init(key, params, config, first_scan, initial_pose)
         if int(state.status.code) == 0:
             return state, config
         state, layout = _grown(state, config.layout, stats, 0, progress)
