@@ -22,6 +22,10 @@ each entry by the program text, the compile options, the JAX/XLA versions and th
 device, so a stale entry is never used; a cached executable computes bit for bit
 what a freshly compiled one computes (``tests/test_cache.py`` checks this).
 
+The filters' chunk runners and the grid ``init`` are also kept there already traced
+and lowered (subfolder ``exports``, :mod:`jaxslam.executables`), so that a warm run
+skips tracing them too; those entries are keyed by the jaxslam sources as well.
+
 The cache is trusted code: do not point it at a folder that others can write to.
 
 Library users call :func:`enable_compilation_cache` once, before the first
