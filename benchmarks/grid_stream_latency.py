@@ -56,7 +56,7 @@ def main() -> None:
             compiles["count"] += 1
 
     jax.monitoring.register_event_duration_secs_listener(listen)
-    linear, angular, temporal = keyframe_rule(batch.dataset)
+    linear, angular, temporal = keyframe_rule()
     last = int(batch.keyframes[-1])
     rows = [{"what": "batch run_grid_slam, per keyframe", "median_ms": 1e3 * batch_per_keyframe, "n": steps,
              "max_points": batch.config.max_points}]

@@ -89,15 +89,16 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (recorded in summary.json)")
     run.add_argument("--out", type=Path, default=None, help="output folder (created; required unless --resume)")
     run.add_argument("--max-steps", type=_positive_int, default=None,
-                     help="stop after this many filter steps (scans or keyframes)")
+                     help="stop after this many filter steps (landmark data: scans; laser data: about this many "
+                          "keyframes, the log cut where the odometry rule reaches them)")
     run.add_argument("--set", dest="overrides", type=_override, action="append", default=[], metavar="NAME=VALUE",
                      help="override a noise level or threshold of the filter's Params (repeatable); "
                           "`jaxslam run --list-params --algorithm A` lists names, units and defaults")
     run.add_argument("--linear-update", type=float, default=None, metavar="M",
-                     help="laser data: process a scan after this much odometric travel (GMapping linearUpdate); "
-                          "default: the dataset's rule (1.0; FR079 every scan)")
+                     help="laser data: a scan is a keyframe after this much tracked travel (GMapping "
+                          "linearUpdate; default 1.0)")
     run.add_argument("--angular-update", type=float, default=None, metavar="RAD",
-                     help="laser data: ... or this much odometric rotation (angularUpdate; default 0.5, FR079 0)")
+                     help="laser data: ... or this much tracked rotation (angularUpdate; default 0.5)")
     run.add_argument("--temporal-update", type=float, default=None, metavar="S",
                      help="laser data: ... or after this many seconds (temporalUpdate; default -1: off)")
     run.add_argument("--params", type=Path, default=None, metavar="FILE",

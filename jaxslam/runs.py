@@ -163,7 +163,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     load_s = time.perf_counter() - loading
     live = None
     if viz is not None:
-        live = _grid_live_log(viz, log, max_steps, keyframes, chunk)
+        live = _grid_live_log(viz, log, chunk)
         checkpoint, chunk = live, live.every
     result = grid_experiment.run_grid_slam(
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
@@ -211,16 +211,11 @@ def _open_viz(rerun_path, rerun_spawn, name):
         raise RunError(f"--rerun/--rerun-spawn: {err}") from None
 
 
-def _grid_live_log(viz, log, max_steps, keyframes, chunk):
-    """Follow a grid run: the same keyframes as run_grid_slam chooses."""
-    from jaxslam.datasets.carmen import select_keyframes
-    from jaxslam.grid import experiment as grid_experiment
+def _grid_live_log(viz, log, chunk):
+    """Follow a grid run (its keyframes are collected as the run goes)."""
     from jaxslam.viz.rerun_log import GridLiveLog
 
-    name = grid_experiment._dataset_name(log)
-    rule = grid_experiment.keyframe_rule(name, *((keyframes or {}).get(k) for k in ("linear", "angular", "temporal")))
-    chosen = select_keyframes(log.odom_poses, *rule, times=log.scan_times)[:max_steps]
-    return GridLiveLog(viz, log, chosen, every=min(chunk or 25, 25))
+    return GridLiveLog(viz, log, every=min(chunk or 100, 100))
 
 
 # --------------------------------------------------------------------------- ROS bags

@@ -46,6 +46,10 @@ def summarise(info) -> dict[str, Any]:
         "dropped_points": info.dropped_points,
         "pd_ok_fraction": jnp.mean(info.pd_ok.astype(jnp.float32)),
         "status": info.status,
+        "keyframe": info.keyframe,
+        "motion": info.motion,
+        "track_score": info.track_score,
+        "track_accepted": info.track_accepted,
     }
 
 
@@ -123,8 +127,10 @@ def run_filter(
     desc: str = "filter",
     progress: bool = True,
     checkpoint=None,
+    unit: str = "keyframe",
 ):
-    """Run a grid filter over keyframes 1..T (keyframe 0 is ``first_scan``).
+    """Run a grid filter over steps 1..T (keyframes, or every scan with a per-scan
+    step; step 0 is ``first_scan``).
 
     Returns:
         ``(state, ys, config, stats)``: the final state, the stacked
@@ -149,7 +155,7 @@ def run_filter(
         if checkpoint is not None:
             checkpoint.static = {"layout": layout_json(config.layout)}
         (state, params), ys, timing = run_scan_chunked(
-            None, (state, params), xs, chunk=chunk, desc=desc, progress=progress,
+            None, (state, params), xs, chunk=chunk, desc=desc, unit=unit, progress=progress,
             runner=chunk_runner(step_fn, config), checkpoint=checkpoint, start=start,
             stop=lambda carry: int(carry[0].status.code) != 0, prior=prior,
         )

@@ -1,15 +1,16 @@
 """Run a grid SLAM filter on a CARMEN log (or a simulated one) from end to end.
 
-:func:`run_grid_slam` selects keyframes from the odometry (GMapping's linear and
-angular update thresholds), lays out the paged maps (a page table over the odometry
-box plus a margin; it grows if the corrected path leaves it, and so does the tile
-pool: :mod:`jaxslam.grid.paged`), runs the chosen filter in jitted chunks with a
-progress bar (:func:`jaxslam.grid.driver.run_filter`; compile time is reported
-apart), rebuilds the best particle's path (largest accumulated
-log-likelihood, as GMapping) and gives a pose for every scan of the log: the last
-corrected keyframe pose composed with the odometry since
-(:func:`jaxslam.metrics.trajectory_io.interpolate_poses`). The map frame is the
-odometry frame: the filter starts at the first keyframe's odometry pose.
+:func:`run_grid_slam` runs the chosen filter's per-scan step over every scan of the
+log (:mod:`jaxslam.grid.tracking`: each scan is tracked against the best particle's
+map, and GMapping's linear and angular update thresholds on that tracked motion pick
+the keyframes, where the filter itself runs), lays out the paged maps (a page table
+over the odometry box plus a margin; it grows if the corrected path leaves it, and so
+does the tile pool: :mod:`jaxslam.grid.paged`), runs in jitted chunks with a progress
+bar (:func:`jaxslam.grid.driver.run_filter`; compile time is reported apart), rebuilds
+the best particle's path (largest accumulated log-likelihood, as GMapping) and gives
+the filter's own pose for every scan: the lineage's keyframe pose composed with the
+tracked motion since (:func:`jaxslam.grid.tracking.scan_trajectory`). The map frame is
+the odometry frame: the filter starts at the first scan's odometry pose.
 """
 
 from __future__ import annotations
@@ -30,29 +31,23 @@ from jaxslam.grid.filter import best_particle
 from jaxslam.grid.paged import PagedLayout, pool_stats, stitch, window_side
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, Scan, default_params
 from jaxslam.grid.rays import required_points
-from jaxslam.metrics.trajectory_io import interpolate_poses, se2_between
+from jaxslam.grid.tracking import scan_trajectory
+from jaxslam.metrics.trajectory_io import se2_between
 
 ALGORITHMS = algorithms("laser")
+# Per-scan outputs of the run kept for every scan (the rest is kept per keyframe).
+PER_SCAN_KEYS = ("poses", "ancestors", "keyframe", "motion", "track_score", "track_accepted")
 
 # Keyframe rule (GMapping's linearUpdate m, angularUpdate rad, temporalUpdate s; a
-# negative temporal update disables it).
+# negative temporal update disables it), applied inside the filter to the tracked
+# motion (jaxslam.grid.tracking), the same for every log.
 DEFAULT_KEYFRAMES = (1.0, 0.5, -1.0)
-# FR079: every scan. Its wheel odometry misses rotations of the robot while it stands
-# or creeps in doorways: over scans 826-828 the scans turn by -25 deg in 0.6 s while
-# the odometry reports -4 deg (and +24 deg against -18 deg over scans 783-818). A rule
-# driven by odometry cannot notice such motion, and the error piles up between
-# keyframes beyond the matcher's reach; with every scan it stays below about 10 deg
-# per step. GMapping's own corrected FR079 log likewise processed 4791 of its 4934
-# scans. (Measured, 30 particles: 1.0/0.5 gives 3.6 m / 13 deg, 0.2/0.1 gives
-# 4.2 m / 15 deg, every scan 0.046 m / 0.6 deg; see benchmarks/grid_maps.py.)
-DATASET_KEYFRAMES: dict[str, tuple[float, float, float]] = {"fr079": (0.0, 0.0, -1.0)}
 
 
-def keyframe_rule(name: str, linear=None, angular=None, temporal=None) -> tuple[float, float, float]:
-    """``(linear, angular, temporal)`` thresholds: the given ones, else the dataset's."""
-    base = DATASET_KEYFRAMES.get(name, DEFAULT_KEYFRAMES)
+def keyframe_rule(linear=None, angular=None, temporal=None) -> tuple[float, float, float]:
+    """``(linear, angular, temporal)`` thresholds: the given ones, else GMapping's defaults."""
     given = (linear, angular, temporal)
-    return tuple(float(b if g is None else g) for g, b in zip(given, base, strict=True))
+    return tuple(float(b if g is None else g) for g, b in zip(given, DEFAULT_KEYFRAMES, strict=True))
 
 
 @dataclasses.dataclass
@@ -239,30 +234,39 @@ def run_grid_slam(
         bounds: a starting map box ``(xmin, ymin, xmax, ymax)`` instead.
         pool_slots: starting pool size in tiles (default: :func:`map_layout`'s
             estimate); it doubles whenever a step needs more.
-        max_keyframes: stop after this many keyframes (short runs, CI).
+        max_keyframes: stop after about this many keyframes (short runs, CI): the log
+            is cut where GMapping's rule on the odometry reaches this many.
         dtype: float dtype of poses and params.
-        chunk: keyframes per compiled chunk.
+        chunk: scans per compiled chunk.
         checkpoint: a :class:`jaxslam.checkpoint.Checkpoint` to save the state every N
-            keyframes and/or resume from it (see :func:`jaxslam.progress.run_scan_chunked`).
+            scans and/or resume from it (see :func:`jaxslam.progress.run_scan_chunked`).
     """
     name = _dataset_name(log_or_sim)
     log = log_or_sim if isinstance(log_or_sim, CarmenLog) else load_dataset_log(log_or_sim)
-    rule = keyframe_rule(name, linear_update, angular_update, temporal_update)
-    keyframes = select_keyframes(log.odom_poses, *rule, times=log.scan_times)
+    rule = keyframe_rule(linear_update, angular_update, temporal_update)
+    scans = log.num_scans
     if max_keyframes is not None:
-        keyframes = keyframes[:max_keyframes]
-    if keyframes.shape[0] < 2:
-        raise ValueError("the log has fewer than two keyframes; nothing to filter")
-    odom = log.odom_poses[keyframes]
-    controls = se2_between(odom[:-1], odom[1:])
+        # Cut the log where GMapping's rule on the odometry reaches this many keyframes
+        # (the filter's own keyframes follow the tracked motion, so the count is close).
+        odometric = select_keyframes(log.odom_poses, *rule, times=log.scan_times)
+        if odometric.shape[0] > max_keyframes:
+            scans = int(odometric[max_keyframes - 1]) + 1
+    if scans < 2:
+        raise ValueError("the log has fewer than two scans; nothing to filter")
+    odom = np.asarray(log.odom_poses[:scans], np.float64)
+    increments = se2_between(odom[:-1], odom[1:])
+    times = np.asarray(log.scan_times[:scans], np.float64)
 
     overrides = dict(params or {})
     angles = overrides.pop("beam_angles", log.angles)
     laser_offset = overrides.pop("laser_offset", log.laser_offset)
+    for field_name, value in zip(("linear_update", "angular_update", "temporal_update"), rule, strict=True):
+        overrides.setdefault(field_name, value)
+    rule = tuple(float(overrides[k]) for k in ("linear_update", "angular_update", "temporal_update"))
     prm: GridSlamParams = default_params(angles, laser_offset, num_particles=particles, dtype=dtype, **overrides)
     usable = float(prm.usable_range)
-    ranges = np.asarray(log.ranges[keyframes], np.float64)
-    valid = np.asarray(log.valid[keyframes]) & np.isfinite(ranges)
+    ranges = np.asarray(log.ranges[:scans], np.float64)
+    valid = np.asarray(log.valid[:scans]) & np.isfinite(ranges)
     ranges = np.where(valid, ranges, 0.0)
     cfg_over = dict(config or {})
     # Static bound on the usable range (it sizes the tile window of a write): 20 m or
@@ -271,7 +275,7 @@ def run_grid_slam(
     window_range = float(cfg_over.pop("window_range", max(20.0, 10.0 * np.ceil(usable / 10.0))))
     if margin is None:
         margin = window_range + 10.0
-    layout = map_layout(log, keyframes, resolution, margin, particles, window_range, bounds)
+    layout = map_layout(log, np.arange(scans), resolution, margin, particles, window_range, bounds)
     if pool_slots is not None:
         layout = dataclasses.replace(layout, slots=int(pool_slots))
     max_points = cfg_over.pop("max_points", None)
@@ -281,35 +285,38 @@ def run_grid_slam(
     cfg = make_config(algorithm, particles, layout, log.num_beams, max_points, window_range=window_range, **cfg_over)
     module = gmapping if algorithm == "gmapping" else srupf
 
-    offsets = np.asarray(log.angle_offsets[keyframes], np.float64)
+    offsets = np.asarray(log.angle_offsets[:scans], np.float64)
     # NumPy inputs: the jitted init and chunk runner take them as they are, whereas
     # jnp.asarray would run (and compile or load) a conversion program for each.
     real = np.dtype(dtype)
     first = Scan(np.asarray(ranges[0], real), np.asarray(valid[0]), np.asarray(offsets[0], real))
-    substeps = np.diff(keyframes).astype(np.float64)
-    controls = Odometry(np.asarray(controls, real), np.asarray(substeps, real))
+    controls = Odometry(np.asarray(increments, real), np.ones(scans - 1, real), np.asarray(np.diff(times), real))
     observations = Scan(np.asarray(ranges[1:], real), np.asarray(valid[1:]), np.asarray(offsets[1:], real))
     unit = float(prm.log_odds_unit)
     params_record = {k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"}
     state, ys, cfg, stats = run_filter(
-        module.step, jax.random.PRNGKey(seed), prm, cfg, first, np.asarray(odom[0], real), controls, observations,
-        chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress, checkpoint=checkpoint,
+        module.scan_step, jax.random.PRNGKey(seed), prm, cfg, first, np.asarray(odom[0], real), controls,
+        observations, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress,
+        checkpoint=checkpoint, unit="scan",
     )
     state = jax.tree_util.tree_map(np.asarray, state)  # once, to the host: best particle, map, result
     best = int(best_particle(state))
-    kf_poses = best_trajectory(ys["poses"], ys["ancestors"], best)
+    flags = np.asarray(ys["keyframe"], bool)
+    kf_rows = np.flatnonzero(flags)
+    kf_poses = best_trajectory(np.asarray(ys["poses"])[kf_rows], np.asarray(ys["ancestors"])[kf_rows], best)
+    keyframes, trajectory = scan_trajectory(odom[0], flags, kf_poses, ys["motion"])
     kf_poses = np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0)
-    trajectory = interpolate_poses(keyframes, kf_poses, log.odom_poses)
     cells, origin = stitch(state.maps.pool, state.maps.tables[best], cfg.layout)
     grid = cells.astype(np.float32) * unit
-    info = {k: np.asarray(v) for k, v in ys.items() if k not in ("poses", "ancestors")}
+    info = {k: np.asarray(v)[kf_rows] for k, v in ys.items() if k not in PER_SCAN_KEYS}
+    info.update({k: np.asarray(ys[k]) for k in PER_SCAN_KEYS if k not in ("poses", "ancestors")})
     return GridSlamResult(
         algorithm=algorithm,
         dataset=name,
         particles=particles,
         seed=seed,
         trajectory=trajectory,
-        scan_times=np.asarray(log.scan_times),
+        scan_times=times,
         keyframes=keyframes,
         keyframe_poses=kf_poses,
         map_log_odds=grid,
@@ -330,7 +337,6 @@ def run_grid_slam(
 
 __all__ = [
     "ALGORITHMS",
-    "DATASET_KEYFRAMES",
     "DEFAULT_KEYFRAMES",
     "GridSlamResult",
     "best_trajectory",

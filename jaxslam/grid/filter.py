@@ -105,6 +105,8 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
         cumulative_log_likelihood=jnp.zeros((n,), dtype),
         maps=maps,
         status=status,
+        motion=jnp.zeros((3,), dtype),
+        since_keyframe=jnp.zeros((4,), dtype),
     )
 
 
@@ -166,6 +168,8 @@ def finish_step(
         cumulative_log_likelihood=keep(cumulative[ancestors], state.cumulative_log_likelihood),
         maps=resample_maps(maps, ancestors, resampled),
         status=status,
+        motion=state.motion,
+        since_keyframe=state.since_keyframe,
     )
     info = GridSlamInfo(
         poses=map_poses,
@@ -178,8 +182,35 @@ def finish_step(
         dropped_points=dropped,
         pd_ok=pd_ok,
         status=status.code,
+        keyframe=jnp.asarray(True),
+        motion=jnp.zeros_like(state.motion),
+        track_score=jnp.zeros((), log_weights.dtype),
+        track_accepted=jnp.asarray(False),
     )
     return new_state, info
+
+
+def empty_info(state: GridSlamState, config: GridSlamConfig) -> GridSlamInfo:
+    """The :class:`GridSlamInfo` of a step that updated nothing: zeros, the state's
+    weights, identity ancestors, ``keyframe`` False and the state's map status."""
+    n, dtype = config.num_particles, state.poses.dtype
+    zero = jnp.zeros((), dtype)
+    return GridSlamInfo(
+        poses=jnp.zeros((n, 3), dtype),
+        log_weights=state.log_weights,
+        scores=jnp.zeros((n,), dtype),
+        log_likelihoods=jnp.zeros((n,), dtype),
+        ancestors=jnp.arange(n, dtype=jnp.int32),
+        resampled=jnp.asarray(False),
+        ess=zero,
+        dropped_points=jnp.zeros((), jnp.int32),
+        pd_ok=jnp.ones((n,), bool),
+        status=state.status.code,
+        keyframe=jnp.asarray(False),
+        motion=state.motion,
+        track_score=zero,
+        track_accepted=jnp.asarray(False),
+    )
 
 
 def guard(step_fn):
@@ -187,9 +218,7 @@ def guard(step_fn):
 
     def guarded(key, state: GridSlamState, control, observation, params, config):
         def halted(key, state, control, observation, params):
-            shapes = jax.eval_shape(lambda *a: step_fn(*a, config), key, state, control, observation, params)[1]
-            zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-            return state, zeros._replace(status=state.status.code)
+            return state, empty_info(state, config)
 
         def live(key, state, control, observation, params):
             return step_fn(key, state, control, observation, params, config)
@@ -209,6 +238,7 @@ def reset_status(state: GridSlamState) -> GridSlamState:
 
 __all__ = [
     "best_particle",
+    "empty_info",
     "finish_step",
     "guard",
     "init",

@@ -42,6 +42,7 @@ from jaxslam.grid.types import (
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
+from jaxslam.grid.tracking import per_scan
 from jaxslam.models.odometry import sample_gmapping
 
 
@@ -135,6 +136,9 @@ def _step(
 
 step = guard(_step)
 run = scan_runner(step)
+# Every scan a step, keyframes decided on the tracked motion (jaxslam.grid.tracking).
+scan_step = guard(per_scan(_step))
+scan_run = scan_runner(scan_step)
 
 
-__all__ = ["correct_pose", "init", "run", "step"]
+__all__ = ["correct_pose", "init", "run", "scan_run", "scan_step", "step"]

@@ -34,9 +34,9 @@ consecutive scans err by 0.60 deg on average (wheels: 1.07 deg), but single fals
 matches reach 20 deg (``min_gain`` 0.02) or 11 deg (0.1). FR079 with GMapping's
 keyframe rule: srupf-gm 3.29 m mean relations error on the wheel odometry, 4.48 m
 with ``min_gain`` 0.02, 1.49 m with 0.1 (every scan as a keyframe: 0.046 m, as noted at
-DATASET_KEYFRAMES; not re-run here). Intel:
+the former per-log every-scan rule; not re-run here). Intel:
 0.047 m -> 0.042 m (``min_gain`` 0.02). It does not yet replace FR079's
-every-scan keyframe rule.
+every-scan keyframe rule (superseded by per-scan tracking, :mod:`jaxslam.grid.tracking`, which matches each scan against the best map instead of the previous scan).
 """
 
 from __future__ import annotations

@@ -81,6 +81,7 @@ from jaxslam.grid.types import (
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
+from jaxslam.grid.tracking import per_scan
 from jaxslam.models.odometry import (
     Prediction,
     motion_noise_sqrt,
@@ -236,6 +237,9 @@ def _step(
 
 step = guard(_step)
 run = scan_runner(step)
+# Every scan a step, keyframes decided on the tracked motion (jaxslam.grid.tracking).
+scan_step = guard(per_scan(_step))
+scan_run = scan_runner(scan_step)
 
 
 __all__ = ["MeasurementUpdate", "init", "particle_update", "predict", "run", "sqrt_measurement_update", "step"]

@@ -6,18 +6,17 @@ taken apart. For each scan it
 1. takes the odometry pose at the scan's stamp (given, or interpolated from the
    odometry messages received so far; a scan waits until odometry newer than it
    has arrived, so none is dropped);
-2. decides whether the scan is a keyframe with the batch rule
-   (:func:`jaxslam.datasets.carmen.select_keyframes`: GMapping's linear, angular and
-   temporal thresholds on accumulated odometric motion);
-3. for a keyframe, runs one filter step: the filter module's ``step`` (the batch
-   run's, :func:`jaxslam.grid.driver.run_filter`) jitted alone with the batch run's
-   per-step summary (:func:`step_runner`), with the same per-keyframe keys
-   (``jax.random.split(PRNGKey(seed), n)[k]`` does not depend on ``n``). It compiles
-   once; a recompilation happens only when the paged maps or the ray budget
-   (``max_points``) must grow, as in the batch run.
+2. runs one step of the filter module's per-scan step (``scan_step``, the batch
+   run's, :mod:`jaxslam.grid.tracking`): the scan is tracked against the best
+   particle's map, and where the tracked motion reaches GMapping's linear, angular
+   or temporal threshold the scan is a keyframe and the filter updates. The step is
+   jitted alone with the batch run's per-step summary (:func:`step_runner`), with the
+   same per-scan keys (``jax.random.split(PRNGKey(seed), n)[k]`` does not depend on
+   ``n``). It compiles once; a recompilation happens only when the paged maps or the
+   ray budget (``max_points``) must grow, as in the batch run.
 
 Same inputs, same result: feeding a log scan by scan gives the batch run's keyframes,
-keyframe poses, trajectory and map bit for bit (``tests/grid/test_stream.py``). The
+keyframe poses, trajectory (the filter's pose of every scan) and map bit for bit (``tests/grid/test_stream.py``). The
 map frame is the odometry frame; the filter starts at the first scan's odometry.
 
 Example::
@@ -44,12 +43,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.datasets.geometry import se2_between, se2_compose
+from jaxslam.datasets.geometry import se2_between
 from jaxslam.datasets.rosbag import interpolate_odometry
 from jaxslam.driver import step_keys
 from jaxslam.grid import driver, gmapping, srupf
 from jaxslam.grid.experiment import best_trajectory, make_config, map_layout
 from jaxslam.grid.paged import stitch
+from jaxslam.grid.tracking import scan_trajectory
 from jaxslam.grid.types import GridSlamParams, Odometry, Scan, default_params
 from jaxslam.grid.rays import required_points
 
@@ -85,16 +85,16 @@ class StreamingGridSlam:
         seed: PRNG seed (the batch run's).
         params: overrides of :func:`jaxslam.grid.types.default_params`.
         config: overrides of the static :class:`GridSlamConfig` fields.
-        linear_update, angular_update, temporal_update: keyframe rule (m, rad, s;
-            GMapping's linearUpdate, angularUpdate, temporalUpdate; negative temporal
-            disables it).
+        linear_update, angular_update, temporal_update: keyframe rule on the tracked
+            motion (m, rad, s; GMapping's linearUpdate, angularUpdate,
+            temporalUpdate; negative temporal disables it).
         resolution: cell size (m).
         margin: the starting page table covers the first pose plus this many metres
             (it grows, with one recompilation, if the robot goes further; a page-table
             entry costs 4 bytes per 3.2 m tile and particle).
-        max_points: ray samples per scan; default: twice what the first keyframe
+        max_points: ray samples per scan; default: twice what the first scan
             needs (at most what ``B`` beams at the usable range can need), doubled
-            (one recompilation) when a later keyframe needs more. The result does not
+            (one recompilation) when a later scan needs more. The result does not
             depend on it as long as no samples are dropped.
         dtype: float dtype of poses and params.
     """
@@ -123,9 +123,12 @@ class StreamingGridSlam:
         self.rule = (float(linear_update), float(angular_update), float(temporal_update))
         self.resolution = float(resolution)
         self.margin = float(margin)
+        overrides = dict(params or {})
+        for name, value in zip(("linear_update", "angular_update", "temporal_update"), self.rule, strict=True):
+            overrides.setdefault(name, value)
         self.params: GridSlamParams = default_params(
             np.asarray(beam_angles), np.asarray(laser_offset, np.float64), num_particles=particles, dtype=dtype,
-            **(params or {}))
+            **overrides)
         self.num_beams = int(np.shape(beam_angles)[0])
         self.usable = float(self.params.usable_range)
         self._config_overrides = dict(config or {})
@@ -151,8 +154,9 @@ class StreamingGridSlam:
         self._step_ancestors: list[np.ndarray] = []
         self.info: dict[str, list] = {"ess": [], "resampled": [], "mean_score": [], "best_score": [],
                                       "dropped_points": [], "pd_ok_fraction": []}
-        self._linear_sum = self._angular_sum = 0.0
-        self._last_key_time = None
+        # Per processed scan after the first: keyframe flag and tracked motion.
+        self._flags: list[bool] = []
+        self._motions: list[np.ndarray] = []
         self.latency_s: list[float] = []  # wall time of each keyframe's add_scan
 
     # ------------------------------------------------------------------ input
@@ -213,22 +217,6 @@ class StreamingGridSlam:
 
     # ------------------------------------------------------------------ filter
 
-    def _is_keyframe(self, stamp: float, odom: np.ndarray) -> bool:
-        """select_keyframes, one scan at a time (same arithmetic)."""
-        if not self.odom_poses:
-            self._last_key_time = stamp
-            return True
-        step = se2_between(self.odom_poses[-1][None], odom[None])[0]
-        self._linear_sum += np.hypot(step[0], step[1])
-        self._angular_sum += np.abs(step[2])
-        linear, angular, temporal = self.rule
-        due = temporal >= 0 and stamp - self._last_key_time > temporal
-        if self._linear_sum >= linear or self._angular_sum >= angular or due:
-            self._linear_sum = self._angular_sum = 0.0
-            self._last_key_time = stamp
-            return True
-        return False
-
     def _scan(self, ranges, valid, offset) -> tuple[Scan, int]:
         valid = valid & np.isfinite(ranges)
         ranges = np.where(valid, ranges, 0.0)
@@ -251,22 +239,23 @@ class StreamingGridSlam:
 
     def _process(self, stamp, ranges, valid, offset, odom) -> bool:
         started = time.perf_counter()
-        keyframe = self._is_keyframe(stamp, odom)
         self.counts["scans"] += 1
         index = len(self.scan_times)
+        scan, need = self._scan(ranges, valid, offset)
+        if index == 0:
+            self._start(scan, need, odom)
+            keyframe = True
+            self.keyframes.append(0)
+        else:
+            control = Odometry(np.asarray(se2_between(self.odom_poses[-1][None], odom[None])[0], self.dtype),
+                               np.asarray(1.0, self.dtype), np.asarray(stamp - self.scan_times[-1], self.dtype))
+            keyframe = self._step(control, scan, need)
+            if keyframe:
+                self.keyframes.append(index)
         self.scan_times.append(stamp)
         self.odom_poses.append(odom)
         if not keyframe:
             return False
-        scan, need = self._scan(ranges, valid, offset)
-        if not self.keyframes:
-            self._start(scan, need, odom)
-        else:
-            previous = self.odom_poses[self.keyframes[-1]]
-            control = Odometry(jnp.asarray(se2_between(previous[None], odom[None])[0], self.dtype),
-                               jnp.asarray(float(index - self.keyframes[-1]), self.dtype))
-            self._step(control, scan, need)
-        self.keyframes.append(index)
         self.counts["keyframes"] += 1
         jax.block_until_ready(self.state)
         self.latency_s.append(time.perf_counter() - started)
@@ -283,18 +272,19 @@ class StreamingGridSlam:
                                                     jnp.asarray(odom, self.dtype), self.stats)
         self.configs_used = {self.config}
 
-    def _step(self, control: Odometry, scan: Scan, need: int) -> None:
-        """One keyframe through the batch run's chunk runner (a chunk of one)."""
+    def _step(self, control: Odometry, scan: Scan, need: int) -> bool:
+        """One scan through the batch run's per-scan step (a chunk of one); returns
+        whether it was a keyframe."""
         import dataclasses
 
         if need > self.config.max_points:  # a larger ray budget: one recompilation
             budget = _budget(max(need, 2 * self.config.max_points), self._worst_case())
             self.config = dataclasses.replace(self.config, max_points=budget)
             self.counts["recompilations"] += 1
-        step = len(self.keyframes) - 1
+        step = len(self._flags)
         key = self._step_keys(step)
         while True:
-            runner = step_runner(self.module.step, self.config)
+            runner = step_runner(self.module.scan_step, self.config)
             self.configs_used.add(self.config)
             # The runner donates its carry: keep what it returns.
             (self.state, self.params), ys = runner((self.state, self.params), key, control, scan)
@@ -305,10 +295,15 @@ class StreamingGridSlam:
             self.config = dataclasses.replace(self.config, layout=layout)
             self.counts["recompilations"] += 1
         ys = jax.device_get(ys)
-        self._step_poses.append(ys["poses"])
-        self._step_ancestors.append(ys["ancestors"])
-        for name in self.info:
-            self.info[name].append(ys[name])
+        keyframe = bool(ys["keyframe"])
+        self._flags.append(keyframe)
+        self._motions.append(np.asarray(ys["motion"], np.float64))
+        if keyframe:
+            self._step_poses.append(ys["poses"])
+            self._step_ancestors.append(ys["ancestors"])
+            for name in self.info:
+                self.info[name].append(ys[name])
+        return keyframe
 
     # ------------------------------------------------------------------ output
 
@@ -325,17 +320,15 @@ class StreamingGridSlam:
         return np.concatenate([first, np.asarray(path, np.float64)], 0)
 
     def trajectory(self) -> np.ndarray:
-        """(S, 3) a pose for every scan so far: its keyframe's corrected pose and the
-        odometry since (as the batch run)."""
-        from jaxslam.metrics.trajectory_io import interpolate_poses
-
-        return interpolate_poses(np.asarray(self.keyframes), self.keyframe_poses(), np.stack(self.odom_poses))
+        """(S, 3) the filter's pose of every scan so far: its keyframe's corrected pose
+        and the tracked motion since (as the batch run)."""
+        motions = np.stack(self._motions) if self._motions else np.zeros((0, 3))
+        return scan_trajectory(self.odom_poses[0], np.asarray(self._flags, bool), self.keyframe_poses()[1:],
+                               motions)[1]
 
     def pose(self) -> np.ndarray:
         """(3,) the best estimate of the latest scan's robot pose."""
-        corrected = self.keyframe_poses()[-1]
-        since = se2_between(self.odom_poses[self.keyframes[-1]][None], self.odom_poses[-1][None])
-        return se2_compose(corrected[None], since)[0]
+        return self.trajectory()[-1]
 
     def map(self) -> tuple[np.ndarray, float, tuple[float, float]]:
         """``(log_odds (H, W) float32, resolution, origin)`` of the best particle's map

@@ -45,6 +45,9 @@ class GridSlamConfig:
             (:mod:`jaxslam.grid.score`).
         free_check: scale the evidence of a beam by the freeness of the cell just
             before its end point (GMapping's free-cell test).
+        tracking: match every scan between keyframes against the best particle's
+            map (:mod:`jaxslam.grid.tracking`); False moves the particles by the
+            odometry alone between keyframes (GMapping).
     """
 
     num_particles: int
@@ -61,6 +64,7 @@ class GridSlamConfig:
     score_kernel: str = "gaussian3"
     free_check: bool = True
     window_range: float = 20.0
+    tracking: bool = True
 
     def __post_init__(self):
         choices = {
@@ -97,6 +101,13 @@ class GridSlamParams(NamedTuple):
     ellipse), ``learning_rate`` (optax refinement, in basis units), ``min_score``
     (below it the uncorrected pose is kept, GMapping's minimumScore, as a fraction
     of the matched beams).
+    Keyframes (GMapping's linearUpdate, angularUpdate, temporalUpdate; used by the
+    per-scan step, :mod:`jaxslam.grid.tracking`): ``linear_update`` (m),
+    ``angular_update`` (rad), ``temporal_update`` (s; negative: off);
+    ``track_min_score``: the tracking match between keyframes replaces the odometry
+    only above this score (fraction of matched beams); ``track_min_curvature``: its
+    position correction is kept only along directions where the score's curvature
+    (information, per m^2) reaches this (:func:`jaxslam.grid.tracking.constrained_shift`).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -123,6 +134,11 @@ class GridSlamParams(NamedTuple):
     ellipse_floor: Array
     learning_rate: Array
     min_score: Array
+    linear_update: Array
+    angular_update: Array
+    temporal_update: Array
+    track_min_score: Array
+    track_min_curvature: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -177,6 +193,11 @@ def default_params(
         "ellipse_floor": np.array([0.01, 0.01, 0.005]),
         "learning_rate": 0.3,
         "min_score": 0.15,
+        "linear_update": 1.0,
+        "angular_update": 0.5,
+        "temporal_update": -1.0,
+        "track_min_score": 0.3,
+        "track_min_curvature": 20.0,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,
@@ -218,6 +239,8 @@ class GridSlamState(NamedTuple):
     cumulative_log_likelihood: Array  # (P,) GMapping's weightSum
     maps: PagedMaps
     status: MapStatus
+    motion: Array  # (3,) tracked motion since the last keyframe (jaxslam.grid.tracking)
+    since_keyframe: Array  # (4,) distance, rotation, time and scans since the last keyframe
 
 
 class GridSlamInfo(NamedTuple):
@@ -233,21 +256,27 @@ class GridSlamInfo(NamedTuple):
     dropped_points: Array  # () int32 ray samples past the budget
     pd_ok: Array  # (P,) bool: SRUPF downdate kept the factor PD (True for GMapping)
     status: Array  # () int32 map status of this step (0: applied; see jaxslam.grid.paged)
+    keyframe: Array  # () bool: this scan was a keyframe (the fields above are its update)
+    motion: Array  # (3,) tracked motion since the last keyframe after this scan (0 at one)
+    track_score: Array  # () tracking match score (fraction of matched beams)
+    track_accepted: Array  # () bool: the tracking match replaced the odometry
 
 
 class Odometry(NamedTuple):
-    """Odometry between two keyframes: the increment ``(3,)`` in the frame of the first
-    and the number of laser scans it spans. GMapping draws its motion noise once per
-    scan; over ``n`` similar sub-steps the noise standard deviation of the whole
-    increment is ``1/sqrt(n)`` of a single draw on it."""
+    """Odometry between two keyframes (or two scans): the increment ``(3,)`` in the
+    frame of the first, the number of laser scans it spans and the time it took (s;
+    the temporal keyframe rule of the per-scan step). GMapping draws its motion noise
+    once per scan; over ``n`` similar sub-steps the noise standard deviation of the
+    whole increment is ``1/sqrt(n)`` of a single draw on it."""
 
     increment: Array
     substeps: Array | float = 1.0
+    dt: Array | float = 0.0
 
 
 def as_odometry(control) -> Odometry:
     """Accept a bare ``(3,)`` increment as one sub-step."""
-    return control if isinstance(control, Odometry) else Odometry(control, 1.0)
+    return control if isinstance(control, Odometry) else Odometry(control, 1.0, 0.0)
 
 
 class Scan(NamedTuple):

@@ -85,5 +85,6 @@ def score_grid_run(info, result, log) -> dict[str, Any]:
 
         scores.update(relations_metric(load_relations(relations), result.scan_times, result.trajectory))
     if hasattr(log, "true_poses"):
-        scores.update(position_errors(result.trajectory, log.true_poses))
+        # A run cut short (max_keyframes) has poses for the scans it processed.
+        scores.update(position_errors(result.trajectory, log.true_poses[: result.trajectory.shape[0]]))
     return scores

@@ -190,26 +190,27 @@ def _summary_structure():
 class GridLiveLog:
     """Follows a grid run chunk by chunk (through ``run_grid_slam``'s ``checkpoint`` slot).
 
-    At the end of each chunk of ``every`` keyframes it logs, for every keyframe of
-    the chunk, the particles, ESS and resampling and the scan at the best lineage's
-    pose, then the best particle's path and map. It writes no checkpoint file. The
-    laser mount and the log-odds unit come from the run's parameters (the second half
-    of the carry), the map layout from ``static["layout"]`` (set by
-    :func:`jaxslam.grid.driver.run_filter` before each stretch of the run).
+    At the end of each chunk of ``every`` scans (the run's per-scan steps) it logs,
+    for every keyframe of the chunk, the particles, ESS and resampling and the scan at
+    the best lineage's pose, then the best particle's path and map. It writes no
+    checkpoint file. The keyframes are the filter's own (``Info.keyframe``), collected
+    in :attr:`keyframes` as the run goes. The laser mount and the log-odds unit come
+    from the run's parameters (the second half of the carry), the map layout from
+    ``static["layout"]`` (set by :func:`jaxslam.grid.driver.run_filter` before each
+    stretch of the run).
 
     Args:
         viz: the :class:`RerunLog`.
         log: the :class:`CarmenLog` being run (scans, stamps, beam angles).
-        keyframes: the run's keyframe indices into the scans.
-        every: keyframes per chunk (map updates).
+        every: scans per chunk (map updates).
     """
 
     resume = False
 
-    def __init__(self, viz: RerunLog, log, keyframes, every=25):
+    def __init__(self, viz: RerunLog, log, every=100):
         self.viz = viz
         self.log = log
-        self.keyframes = np.asarray(keyframes)
+        self.keyframes = np.zeros(1, np.int64)  # scan 0 starts the run
         self.every = int(every)
         self.static: dict[str, Any] = {}
         self._logged = 0
@@ -233,24 +234,29 @@ class GridLiveLog:
         state, params = carry
         laser_offset = np.asarray(params.laser_offset, np.float64)
         unit = float(params.log_odds_unit)
-        viz, kf, times = self.viz, self.keyframes, np.asarray(self.log.scan_times)
-        odom0 = np.asarray(self.log.odom_poses[kf[0]], np.float64)
+        viz, times = self.viz, np.asarray(self.log.scan_times)
+        odom0 = np.asarray(self.log.odom_poses[0], np.float64)
         if self._first:
             self._first = False
-            viz.at(int(kf[0]), float(times[kf[0]]))
-            self._scan_at(int(kf[0]), odom0, laser_offset)
+            viz.at(0, float(times[0]))
+            self._scan_at(0, odom0, laser_offset)
         outputs = jax.tree_util.tree_unflatten(self._structure, [np.asarray(leaf) for leaf in leaves])
         best = int(np.argmax(np.asarray(state.cumulative_log_likelihood)))
+        flags = np.asarray(outputs["keyframe"], bool)[: int(done)]
+        rows = np.flatnonzero(flags)
         poses = outputs["poses"]
-        path = best_trajectory(poses, outputs["ancestors"], best)
+        path = best_trajectory(poses[rows], outputs["ancestors"][rows], best)
         path = np.concatenate([odom0[None], np.asarray(path, np.float64)], 0)
-        for step in range(self._logged, int(done)):
-            scan = int(kf[step + 1])
+        self.keyframes = np.concatenate([[0], rows + 1]).astype(np.int64)
+        for number, step in enumerate(rows):
+            if step < self._logged:
+                continue
+            scan = int(step) + 1
             viz.at(scan, float(times[scan]))
             viz.particles(poses[step])
             viz.health(float(outputs["ess"][step]), bool(outputs["resampled"][step]))
-            self._scan_at(scan, path[step + 1], laser_offset)
-        viz.trajectory(path[: int(done) + 1])
+            self._scan_at(scan, path[number + 1], laser_offset)
+        viz.trajectory(path)
         layout = PagedLayout(**self.static["layout"])
         cells, origin = stitch(state.maps.pool, state.maps.tables[best], layout)
         viz.grid_map(cells.astype(np.float32) * unit, layout.resolution, origin)

@@ -1,0 +1,188 @@
+"""Per-scan tracking (jaxslam.grid.tracking): the keyframe rule on the tracked motion,
+the fallback of an untrusted match, and the filter's own pose for every scan."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from jaxslam.datasets.geometry import se2_between, se2_compose
+from jaxslam.datasets.keyframes import select_keyframes
+from jaxslam.datasets.laser_sim import simulate
+from jaxslam.grid import srupf
+from jaxslam.grid.experiment import make_config, map_layout, run_grid_slam
+from jaxslam.grid.filter import init, integrate_scan
+from jaxslam.grid.tracking import constrained_shift, is_keyframe, scan_trajectory, track
+from jaxslam.grid.types import Scan, default_params
+
+
+def _compose_all(start, increments):
+    poses = np.empty((increments.shape[0] + 1, 3))
+    poses[0] = start
+    for i, u in enumerate(increments):
+        poses[i + 1] = se2_compose(poses[i], u)
+    return poses
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return simulate(width=12.0, height=8.0, rooms_x=2, laps=0.6, num_beams=91, seed=2)
+
+
+@pytest.fixture(scope="module")
+def blind_turns(sim):
+    """The simulated log with odometry that reports only 20% of every rotation (the
+    FR079 doorway case, everywhere: the robot turns, the wheels barely notice)."""
+    true = sim.true_poses
+    increments = se2_between(true[:-1], true[1:])
+    increments[:, 2] *= 0.2
+    return dataclasses.replace(sim, odom_poses=_compose_all(true[0], increments))
+
+
+def _position_error(result, log):
+    return np.hypot(*(result.trajectory[:, :2] - log.true_poses[: result.trajectory.shape[0], :2]).T)
+
+
+def test_odometry_that_misses_turns_is_mapped_with_the_defaults(blind_turns):
+    """With the defaults every scan is tracked, so the keyframe rule sees the real
+    rotation and the proposals start from it; the error stays at the cell scale for
+    every scan, not only at keyframes. Without tracking (GMapping's odometry rule) the
+    same log is lost: the test can fail."""
+    true_turn = np.abs(se2_between(blind_turns.true_poses[:-1], blind_turns.true_poses[1:])[:, 2]).sum()
+    odom_turn = np.abs(se2_between(blind_turns.odom_poses[:-1], blind_turns.odom_poses[1:])[:, 2]).sum()
+    assert odom_turn < 0.25 * true_turn
+    options = dict(particles=4, seed=0, progress=False, margin=3.0, config={"match_iterations": 8})
+    tracked = run_grid_slam(blind_turns, "srupf-gm", **options)
+    err = _position_error(tracked, blind_turns)
+    assert tracked.trajectory.shape == (blind_turns.num_scans, 3)
+    assert err.mean() < 0.1 and err.max() < 0.3, (err.mean(), err.max())
+    # More keyframes than the odometry rule would give: the tracked rotation counts.
+    assert tracked.keyframes.shape[0] > select_keyframes(blind_turns.odom_poses).shape[0]
+    assert tracked.info["track_accepted"].mean() > 0.8
+
+    blind = run_grid_slam(blind_turns, "srupf-gm", **{**options, "config": {"match_iterations": 8,
+                                                                             "tracking": False}})
+    assert _position_error(blind, blind_turns).mean() > 5 * err.mean()
+
+
+def _state_and_scans(sim):
+    params = default_params(sim.angles, sim.laser_offset, dtype=np.float64)
+    layout = map_layout(sim, np.arange(sim.num_scans), 0.05, 3.0, 2, 20.0)
+    config = make_config("srupf-gm", 2, layout, sim.num_beams, 4096)
+    scans = [Scan(np.where(sim.valid[i], sim.ranges[i], 0.0), sim.valid[i], 0.0) for i in range(sim.num_scans)]
+    with jax.enable_x64(True):
+        state = init(jax.random.PRNGKey(0), params, config, scans[0], sim.true_poses[0])
+        # Two more scans at their true poses, so that the walls score well (one hit
+        # is half of occ_saturation).
+        maps = state.maps
+        for i in (1, 2):
+            maps, _, _ = integrate_scan(maps, np.repeat(sim.true_poses[i][None], 2, 0), scans[i], params, config)
+    return state._replace(maps=maps), scans, params, config
+
+
+def test_tracking_corrects_a_wrong_increment_and_falls_back_on_a_bad_match(sim):
+    with jax.enable_x64(True):
+        state, scans, params, config = _state_and_scans(sim)
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = true_step + np.array([0.03, -0.02, 0.04])
+        motion, score, accepted = track(state, wrong, scans[3], params, config)
+        assert bool(accepted) and float(score) > float(params.track_min_score)
+        # The match removes most of the heading error of the odometry increment; in
+        # this corridor the position along it is weakly constrained, so the position
+        # error may only stay about where it was.
+        before = np.abs(se2_between(true_step[None], wrong[None])[0])
+        after = np.abs(se2_between(true_step[None], np.asarray(motion)[None])[0])
+        assert after[2] < 0.25 * before[2], (before, after)
+        assert np.hypot(*after[:2]) < np.hypot(*before[:2]) + 0.015, (before, after)
+
+        # A scan that does not fit the map (a different room's ranges, shuffled)
+        # scores below track_min_score: the odometry is kept exactly, no jump.
+        rng = np.random.default_rng(0)
+        junk = Scan(rng.permutation(np.asarray(scans[3].ranges)), scans[3].valid, 0.0)
+        motion, score, accepted = track(state, wrong, junk, params, config)
+        assert not bool(accepted) and float(score) < float(params.track_min_score)
+        np.testing.assert_allclose(np.asarray(motion), wrong, atol=1e-12)
+
+        # Where the score is not curved enough (here: nowhere) the position keeps the
+        # odometry's and only the heading is corrected.
+        flat = params._replace(track_min_curvature=np.float64(1e9))
+        motion, _, accepted = track(state, wrong, scans[3], flat, config)
+        assert bool(accepted)
+        np.testing.assert_allclose(np.asarray(motion)[:2], wrong[:2], atol=1e-12)
+        assert abs(float(se2_between(true_step[None], np.asarray(motion)[None])[0, 2])) < 0.25 * 0.04
+
+        # tracking=False: the odometry alone, no match.
+        off = dataclasses.replace(config, tracking=False)
+        motion, _, accepted = track(state, wrong, scans[3], params, off)
+        assert not bool(accepted)
+        np.testing.assert_allclose(np.asarray(motion), wrong, atol=1e-12)
+
+
+def test_constrained_shift_drops_the_flat_direction_of_a_corridor():
+    """A score that is a ridge along x (a corridor along x) gives no information on x:
+    the correction keeps only its y part; a bowl keeps both."""
+    import jax.numpy as jnp
+
+    params = default_params(np.zeros(3), dtype=np.float64)
+    guess = np.array([1.0, 2.0, 0.3])
+    matched = np.array([1.3, 2.1, 0.35])
+    count = jnp.asarray(100.0)
+
+    def ridge(poses):  # 100 beams, score falls with (y - 2.1)^2 only
+        return 100 * (0.6 - 40.0 * (poses[:, 1] - 2.1) ** 2)
+
+    def bowl(poses):
+        return 100 * (0.6 - 40.0 * (poses[:, 1] - 2.1) ** 2 - 40.0 * (poses[:, 0] - 1.3) ** 2)
+
+    with jax.enable_x64(True):
+        shift = constrained_shift(ridge, jnp.asarray(matched), jnp.asarray(guess), ridge(matched[None])[0], count,
+                                  params)
+        np.testing.assert_allclose(np.asarray(shift), [0.0, 0.1], atol=1e-9)
+        shift = constrained_shift(bowl, jnp.asarray(matched), jnp.asarray(guess), bowl(matched[None])[0], count,
+                                  params)
+        np.testing.assert_allclose(np.asarray(shift), [0.3, 0.1], atol=1e-9)
+
+
+def test_keyframe_rule_matches_select_keyframes():
+    """The in-filter rule is GMapping's (``select_keyframes``) on the given motion."""
+    params = default_params(np.zeros(3), linear_update=1.0, angular_update=0.5, temporal_update=2.0,
+                            dtype=np.float64)
+    cases = [((0.99, 0.0, 0.0), False), ((1.0, 0.0, 0.0), True), ((0.0, 0.5, 0.0), True),
+             ((0.0, 0.49, 2.0), False), ((0.0, 0.0, 2.01), True)]
+    for (distance, rotation, time), expected in cases:
+        since = np.array([distance, rotation, time, 1.0])
+        assert bool(is_keyframe(since, params)) == expected, since
+    off = params._replace(temporal_update=np.float64(-1.0))
+    assert not bool(is_keyframe(np.array([0.0, 0.0, 1e6, 1.0]), off))
+
+
+def test_untracked_per_scan_run_keeps_gmappings_keyframes(sim):
+    """With tracking off the per-scan step picks exactly the odometry keyframes of
+    select_keyframes, and every scan's pose is its keyframe pose composed with the
+    odometry since (the motion the filter was given)."""
+    result = run_grid_slam(sim, "gmapping", particles=3, seed=0, progress=False, margin=3.0,
+                           config={"tracking": False, "match_iterations": 4})
+    np.testing.assert_array_equal(result.keyframes, select_keyframes(sim.odom_poses))
+    owner = np.searchsorted(result.keyframes, np.arange(sim.num_scans), side="right") - 1
+    anchors = result.keyframe_poses[owner]
+    since = se2_between(sim.odom_poses[result.keyframes[owner]], sim.odom_poses)
+    np.testing.assert_allclose(result.trajectory, se2_compose(anchors, since), atol=2e-4)
+
+
+def test_scan_trajectory_composes_keyframe_poses_and_motion():
+    flags = np.array([False, True, False, False, True])
+    kf_poses = np.array([[1.0, 0.0, np.pi / 2], [1.0, 2.0, np.pi]])
+    motions = np.array([[0.5, 0.0, 0.1], [0, 0, 0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.2], [0, 0, 0]])
+    keyframes, trajectory = scan_trajectory(np.zeros(3), flags, kf_poses, motions)
+    np.testing.assert_array_equal(keyframes, [0, 2, 5])
+    expected = [np.zeros(3), [0.5, 0.0, 0.1], kf_poses[0], se2_compose(kf_poses[0], [0.0, 1.0, 0.0]),
+                se2_compose(kf_poses[0], [1.0, 0.0, 0.2]), kf_poses[1]]
+    np.testing.assert_allclose(trajectory, np.array(expected), atol=1e-12)
+
+
+def test_scan_step_of_each_filter_is_exported():
+    from jaxslam.grid import gmapping
+
+    for module in (gmapping, srupf):
+        assert callable(module.scan_step) and callable(module.scan_run)
