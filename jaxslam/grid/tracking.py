@@ -162,7 +162,8 @@ def per_scan(keyframe_step):
         motion, score, accepted = track(state, control.increment, observation, params, config)
         delta = se2.relative(state.motion, motion)
         since = state.since_keyframe + jnp.stack([
-            jnp.hypot(delta[0], delta[1]), jnp.abs(delta[2]), jnp.asarray(control.dt, dtype), jnp.ones((), dtype),
+            jnp.hypot(delta[0], delta[1]), jnp.abs(delta[2]), jnp.asarray(0.0 if control.dt is None else control.dt, dtype),
+            jnp.ones((), dtype),
         ])
 
         def keyframe(key, state):

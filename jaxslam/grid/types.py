@@ -271,12 +271,12 @@ class Odometry(NamedTuple):
 
     increment: Array
     substeps: Array | float = 1.0
-    dt: Array | float = 0.0
+    dt: Array | None = None  # None (no leaf): stacked keyframe controls need not carry it
 
 
 def as_odometry(control) -> Odometry:
     """Accept a bare ``(3,)`` increment as one sub-step."""
-    return control if isinstance(control, Odometry) else Odometry(control, 1.0, 0.0)
+    return control if isinstance(control, Odometry) else Odometry(control, 1.0)
 
 
 class Scan(NamedTuple):
