@@ -43,13 +43,34 @@ def lineage_changes(best, ancestors) -> int:
     return int(np.sum(parent != best[:-1]))
 
 
-def landmark_run_summary(info: Mapping[str, np.ndarray], obs_mask, particles: int) -> dict[str, float]:
+def coalescence_depth(ancestors, t: int) -> int:
+    """Steps back from step ``t`` until every particle alive after step ``t`` has one
+    common ancestor (``t + 1`` if they have none: a lower bound, as far back as the run).
+
+    ``S_t = {a_t[j]}`` are the particles of step ``t`` (before resampling) with
+    descendants; ``S_{s-1} = {a_{s-1}[i] : i in S_s}``; the depth is ``t - s`` for the
+    latest ``s`` with ``|S_s| = 1``. It is how far back the particles' maps are one map:
+    a landmark seen before that step exists in one version only.
+    """
+    ancestors = np.asarray(ancestors)
+    alive = np.unique(ancestors[t])
+    s = t
+    while alive.size > 1 and s > 0:
+        s -= 1
+        alive = np.unique(ancestors[s][alive])
+    return t - s if alive.size == 1 else t + 1
+
+
+def landmark_run_summary(
+    info: Mapping[str, np.ndarray], obs_mask, particles: int, coalescence_stride: int = 50
+) -> dict[str, float]:
     """Scalars of one landmark-filter run from its ``Info`` (fields ``(T, ...)``).
 
     Args:
         info: the stacked ``Info`` fields of one run (as a mapping of arrays).
         obs_mask: ``(T, Z)`` real observations of the sequence.
         particles: particle count ``N``.
+        coalescence_stride: step stride of the coalescence samples.
 
     Returns:
         ``disagreement_per_obs``: observations whose decision (match/new/ignore)
@@ -60,7 +81,10 @@ def landmark_run_summary(info: Mapping[str, np.ndarray], obs_mask, particles: in
         ``resamplings``; ``ancestors_fraction``: distinct survivors over ``N`` at the
         resampling steps (mean; NaN if it never resampled); ``entropy_ratio``: weight
         entropy over ``log N`` (mean over steps; NaN for ``N = 1``);
-        ``lineage_changes`` (:func:`lineage_changes`); ``dropped_landmarks`` (full
+        ``lineage_changes`` (:func:`lineage_changes`); ``coalescence_steps``: mean of
+        :func:`coalescence_depth` over every ``coalescence_stride``-th step of the
+        second half of the run (``coalescence_censored``: the fraction that reached
+        the start, lower bounds); ``dropped_landmarks`` (full
         tables) and ``max_local_overflow``.
     """
     obs = np.asarray(obs_mask).sum(axis=1)
@@ -72,6 +96,9 @@ def landmark_run_summary(info: Mapping[str, np.ndarray], obs_mask, particles: in
     best_count = np.asarray(info["num_landmarks"], np.float64)
     low = np.asarray(info["num_landmarks_min"], np.float64)
     spread_steps = spread > 0
+    T = resampled.size
+    sample = np.arange(T // 2, T, coalescence_stride)
+    depths = np.array([coalescence_depth(info["ancestors"], int(t)) for t in sample])
     return dict(
         disagreement_per_obs=float(disagree.sum() / real) if real else float("nan"),
         disagreement_per_step=float(disagree.mean()),
@@ -86,6 +113,8 @@ def landmark_run_summary(info: Mapping[str, np.ndarray], obs_mask, particles: in
         if resampled.any() else float("nan"),
         entropy_ratio=float(np.mean(info["weight_entropy"]) / math.log(particles)) if particles > 1 else float("nan"),
         lineage_changes=lineage_changes(info["best_particle"], info["ancestors"]),
+        coalescence_steps=float(depths.mean()) if depths.size else float("nan"),
+        coalescence_censored=float(np.mean(depths > sample)) if depths.size else float("nan"),
         dropped_landmarks=int(np.sum(info["num_dropped"])),
         max_local_overflow=int(np.max(info["local_overflow"])),
     )

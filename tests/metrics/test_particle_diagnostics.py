@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxslam.metrics.particle_diagnostics import landmark_run_summary, lineage_changes
+from jaxslam.metrics.particle_diagnostics import coalescence_depth, landmark_run_summary, lineage_changes
 
 
 def _lineage_forward(best, ancestors):
@@ -50,6 +50,42 @@ def test_lineage_changes_bad_shapes():
     assert lineage_changes(np.zeros(1, int), np.zeros((1, 2), int)) == 0
 
 
+def _coalescence_by_genealogy(ancestors, t):
+    """Reference: the root (step-s particle) of every particle alive after step t, for
+    s = t, t-1, ...; the depth is t - s for the latest s where the roots are one."""
+    N = ancestors.shape[1]
+    for s in range(t, -1, -1):
+        roots = set()
+        for j in range(N):
+            i = ancestors[t][j]
+            for r in range(t - 1, s - 1, -1):
+                i = ancestors[r][i]
+            roots.add(i)
+        if len(roots) == 1:
+            return t - s
+    return t + 1
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_coalescence_depth_matches_genealogy(seed):
+    rng = np.random.default_rng(seed)
+    T, N = 30, 4
+    ancestors = np.tile(np.arange(N), (T, 1))
+    resample = rng.random(T) < 0.5
+    ancestors[resample] = rng.integers(0, N, (resample.sum(), N))
+    for t in range(T):
+        assert coalescence_depth(ancestors, t) == _coalescence_by_genealogy(ancestors, t)
+
+
+def test_coalescence_depth_cases():
+    ident = np.tile(np.arange(3), (5, 1))
+    assert coalescence_depth(ident, 4) == 5  # never merged: censored at t + 1
+    collapsed = ident.copy()
+    collapsed[2] = [1, 1, 1]
+    assert coalescence_depth(collapsed, 4) == 2
+    assert coalescence_depth(collapsed, 2) == 0
+
+
 def test_landmark_run_summary():
     T, N = 4, 4
     info = dict(
@@ -82,5 +118,7 @@ def test_landmark_run_summary():
     # step 1: best 0 descends from ancestors[0][0] = 0 == 0; step 2: best 1 from
     # ancestors[1][1] = 3 != 0 (change); step 3: best 1 from ancestors[2][1] = 1 == 1
     assert s["lineage_changes"] == 1
+    # sampled step t = 2: survivors {0, 1, 2, 3} -> {3, 0} -> {3, 0}: never one (censored)
+    assert s["coalescence_steps"] == 3 and s["coalescence_censored"] == 1.0
     assert s["dropped_landmarks"] == 3
     assert s["max_local_overflow"] == 2
