@@ -33,14 +33,20 @@ def test_lineage_changes_hand_example():
     assert lineage_changes(best, ancestors) == 2
 
 
+def _random_ancestors(rng, T, N, rate):
+    """Ancestors of T steps, N particles: the identity, or (with probability ``rate``)
+    a multinomial draw."""
+    ancestors = np.tile(np.arange(N), (T, 1))
+    resample = rng.random(T) < rate
+    ancestors[resample] = rng.integers(0, N, (resample.sum(), N))
+    return ancestors
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_lineage_changes_matches_tracing(seed):
     rng = np.random.default_rng(seed)
-    T, N = 40, 5
-    ancestors = np.tile(np.arange(N), (T, 1))
-    resample = rng.random(T) < 0.4
-    ancestors[resample] = rng.integers(0, N, (resample.sum(), N))
-    best = rng.integers(0, N, T)
+    ancestors = _random_ancestors(rng, 40, 5, 0.4)
+    best = rng.integers(0, 5, 40)
     assert lineage_changes(best, ancestors) == _lineage_forward(best, ancestors)
 
 
@@ -68,11 +74,8 @@ def _coalescence_by_genealogy(ancestors, t):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_coalescence_depth_matches_genealogy(seed):
-    rng = np.random.default_rng(seed)
-    T, N = 30, 4
-    ancestors = np.tile(np.arange(N), (T, 1))
-    resample = rng.random(T) < 0.5
-    ancestors[resample] = rng.integers(0, N, (resample.sum(), N))
+    T = 30
+    ancestors = _random_ancestors(np.random.default_rng(seed), T, 4, 0.5)
     for t in range(T):
         assert coalescence_depth(ancestors, t) == _coalescence_by_genealogy(ancestors, t)
 
