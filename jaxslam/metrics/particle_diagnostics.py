@@ -85,7 +85,8 @@ def landmark_run_summary(
         :func:`coalescence_depth` over every ``coalescence_stride``-th step of the
         second half of the run (``coalescence_censored``: the fraction that reached
         the start, lower bounds); ``dropped_landmarks`` (full
-        tables) and ``max_local_overflow``.
+        tables), ``max_local_overflow``, ``nonfinite_particles`` and
+        ``rejected_landmarks`` (totals over the run).
     """
     obs = np.asarray(obs_mask).sum(axis=1)
     updated = np.asarray(info["updated"], bool)
@@ -117,4 +118,6 @@ def landmark_run_summary(
         coalescence_censored=float(np.mean(depths > sample)) if depths.size else float("nan"),
         dropped_landmarks=int(np.sum(info["num_dropped"])),
         max_local_overflow=int(np.max(info["local_overflow"])),
+        nonfinite_particles=int(np.sum(info["num_nonfinite_particles"])),
+        rejected_landmarks=int(np.sum(info["num_rejected_landmarks"])),
     )

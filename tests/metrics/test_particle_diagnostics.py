@@ -105,6 +105,8 @@ def test_landmark_run_summary():
         ancestors=np.array([[0, 1, 2, 3], [3, 3, 0, 0], [0, 1, 2, 3], [1, 1, 1, 1]]),
         num_dropped=np.array([0, 0, 0, 3]),
         local_overflow=np.array([0, 2, 0, 1]),
+        num_nonfinite_particles=np.array([0, 1, 0, 0]),
+        num_rejected_landmarks=np.array([2, 0, 0, 1]),
     )
     obs_mask = np.array([[1, 1, 0], [1, 0, 0], [1, 1, 1], [1, 1, 1]], bool)
     s = landmark_run_summary(info, obs_mask, N)
@@ -125,3 +127,4 @@ def test_landmark_run_summary():
     assert s["coalescence_steps"] == 3 and s["coalescence_censored"] == 1.0
     assert s["dropped_landmarks"] == 3
     assert s["max_local_overflow"] == 2
+    assert s["nonfinite_particles"] == 1 and s["rejected_landmarks"] == 3
