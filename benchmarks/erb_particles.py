@@ -84,11 +84,12 @@ def plot(rows, path) -> None:
         for x, r in zip(n, mine):
             axes[0].plot(np.full(len(r["gps_mean_m_per_seed"]), x), r["gps_mean_m_per_seed"], ".", color=color,
                          alpha=0.35, ms=4)
-            axes[0].annotate(f"{len(r['seeds'])}", (x, max(r["gps_mean_m_per_seed"])), textcoords="offset points",
+            top = max(max(r["gps_mean_m_per_seed"]), np.nan_to_num(r["gps_mean_m_ci"][1]))
+            axes[0].annotate(f"{len(r['seeds'])}", (x, top), textcoords="offset points",
                              xytext=(0, 4), ha="center", fontsize=7, color=color)
         axes[1].loglog(n, [r["wall_s_per_seed"] for r in mine], "o-", color=color, label=f"{algorithm} wall per seed")
     axes[0].set_xscale("log")
-    axes[0].set_ylim(bottom=0)
+    axes[0].set_ylim(bottom=0, top=axes[0].get_ylim()[1] * 1.08)
     axes[0].set_xlabel("particles")
     axes[0].set_ylabel("mean GPS error [m]")
     axes[0].set_title("Victoria Park accuracy (dots: seeds; numbers: seeds per point)", fontsize=10)
