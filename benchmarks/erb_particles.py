@@ -5,7 +5,10 @@ For each particle count and algorithm, one ensemble of ``--seeds`` seeds run as 
 program (:func:`jaxslam.feature.ensemble.run_landmark_ensemble`): per seed the GPS
 error after rigid alignment (mean, RMS, max), the landmarks of the best particle and
 the resamplings; per point the mean, standard deviation and 95% confidence interval
-(Student t) over seeds. Wall time is that of the whole ensemble after compilation
+(Student t) over seeds, and per seed the filter's diagnostics
+(:func:`jaxslam.metrics.particle_diagnostics.landmark_run_summary`: association
+disagreement between particles, landmark-count spread, surviving ancestors, weight
+entropy, lineage changes of the best particle). Wall time is that of the whole ensemble after compilation
 (compilation reported apart), and per seed.
 
     python benchmarks/erb_particles.py [--particles 1 3 10 30 100 300 1000] [--seeds 10]
@@ -31,6 +34,7 @@ from _common import RESULTS, print_table, write_json  # noqa: E402
 from jaxslam.datasets import victoria_park  # noqa: E402
 from jaxslam.feature.ensemble import run_landmark_ensemble  # noqa: E402
 from jaxslam.metrics.gps import gps_error  # noqa: E402
+from jaxslam.metrics.particle_diagnostics import landmark_run_summary  # noqa: E402
 from jaxslam.metrics.stats import mean_ci  # noqa: E402
 
 
@@ -50,6 +54,10 @@ def summarise(seq, res) -> dict:
     row["landmarks"] = float(np.mean(res.landmarks))
     row["resamplings_per_seed"] = res.resamplings.tolist()
     row["resamplings"] = float(np.mean(res.resamplings))
+    diagnostics = [landmark_run_summary({k: v[i] for k, v in res.info.items()}, seq.obs_mask, res.particles)
+                   for i in range(len(res.seeds))]
+    row["diagnostics_per_seed"] = diagnostics
+    row["diagnostics"] = {k: float(np.mean([d[k] for d in diagnostics])) for k in diagnostics[0]}
     row["wall_s"] = res.wall_s
     row["wall_s_per_seed"] = res.wall_s / len(res.seeds)
     row["compile_s"] = res.compile_s
@@ -76,12 +84,15 @@ def plot(rows, path) -> None:
         for x, r in zip(n, mine):
             axes[0].plot(np.full(len(r["gps_mean_m_per_seed"]), x), r["gps_mean_m_per_seed"], ".", color=color,
                          alpha=0.35, ms=4)
+            top = max(max(r["gps_mean_m_per_seed"]), np.nan_to_num(r["gps_mean_m_ci"][1]))
+            axes[0].annotate(f"{len(r['seeds'])}", (x, top), textcoords="offset points",
+                             xytext=(0, 4), ha="center", fontsize=7, color=color)
         axes[1].loglog(n, [r["wall_s_per_seed"] for r in mine], "o-", color=color, label=f"{algorithm} wall per seed")
     axes[0].set_xscale("log")
-    axes[0].set_yscale("log")
+    axes[0].set_ylim(bottom=0, top=axes[0].get_ylim()[1] * 1.08)
     axes[0].set_xlabel("particles")
-    axes[0].set_ylabel("mean GPS error [m] (dots: seeds)")
-    axes[0].set_title("Victoria Park accuracy over seeds")
+    axes[0].set_ylabel("mean GPS error [m]")
+    axes[0].set_title("Victoria Park accuracy (dots: seeds; numbers: seeds per point)", fontsize=10)
     axes[1].set_xlabel("particles")
     axes[1].set_ylabel("seconds (ensemble wall / seeds)")
     axes[1].set_title("filter time per seed (run as one ensemble)")
@@ -114,6 +125,7 @@ def main() -> None:
         for algorithm in args.algorithms:
             res = run_landmark_ensemble(seq, algorithm, particles=n, seeds=seeds)
             rows.append(summarise(seq, res))
+            rows[-1]["command"] = "python " + " ".join(sys.argv)
             r = rows[-1]
             print(f"{algorithm} N={n}, {len(seeds)} seeds: GPS mean {r['gps_mean_m']:.2f} m "
                   f"(std {r['gps_mean_m_std']:.2f}, 95% CI {r['gps_mean_m_ci'][0]:.2f}-{r['gps_mean_m_ci'][1]:.2f}), "
