@@ -78,6 +78,8 @@ import numpy as np
 from jax import Array
 
 from jaxslam.core import se2
+from jaxslam.datasets.geometry import se2_compose
+from jaxslam.driver import best_particle
 from jaxslam.grid.filter import empty_info, match_geometry, particle_reader, score_model
 from jaxslam.grid.matching import hill_climb_match
 from jaxslam.grid.score import make_score_fn
@@ -87,7 +89,7 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Od
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted ())``."""
     dtype = state.poses.dtype
-    best = jnp.argmax(state.cumulative_log_likelihood)
+    best = best_particle(state)
     anchor = state.poses[best]
     predicted = se2.compose(state.motion, increment.astype(dtype))
     if not config.tracking:
@@ -208,14 +210,7 @@ def scan_trajectory(first_pose: np.ndarray, keyframe_flags: np.ndarray, keyframe
     # Scan s (1..S-1) belongs to the last keyframe at or before it.
     slot = np.cumsum(np.concatenate([[0], flags.astype(np.int64)]))
     motion = np.concatenate([np.zeros((1, 3)), np.asarray(motions, np.float64)], 0)
-    anchor = anchors[slot]
-    c, s = np.cos(anchor[:, 2]), np.sin(anchor[:, 2])
-    trajectory = np.stack([
-        anchor[:, 0] + c * motion[:, 0] - s * motion[:, 1],
-        anchor[:, 1] + s * motion[:, 0] + c * motion[:, 1],
-        np.arctan2(np.sin(anchor[:, 2] + motion[:, 2]), np.cos(anchor[:, 2] + motion[:, 2])),
-    ], -1)
-    return keyframes, trajectory
+    return keyframes, se2_compose(anchors[slot], motion)
 
 
 __all__ = ["is_keyframe", "per_scan", "scan_trajectory", "track"]

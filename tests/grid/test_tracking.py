@@ -172,7 +172,7 @@ def test_untracked_per_scan_run_keeps_gmappings_keyframes(sim):
 
 def test_scan_trajectory_composes_keyframe_poses_and_motion():
     flags = np.array([False, True, False, False, True])
-    kf_poses = np.array([[1.0, 0.0, np.pi / 2], [1.0, 2.0, np.pi]])
+    kf_poses = np.array([[1.0, 0.0, np.pi / 2], [1.0, 2.0, 3.0]])
     motions = np.array([[0.5, 0.0, 0.1], [0, 0, 0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.2], [0, 0, 0]])
     keyframes, trajectory = scan_trajectory(np.zeros(3), flags, kf_poses, motions)
     np.testing.assert_array_equal(keyframes, [0, 2, 5])
