@@ -184,6 +184,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}), "load_s": load_s,
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
+        "odometry_repair": getattr(log, "odometry_repair", {}),
     }
     if path is not None and _is_bag(path):
         summary["bag"] = dict(log.params)  # the topics and frames used

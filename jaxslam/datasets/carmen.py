@@ -71,6 +71,7 @@ from jaxslam.datasets.carmen_read import read_lines_fast, read_lines_slow
 from jaxslam.datasets.geometry import se2_between, wrap_angle
 from jaxslam.datasets.keyframes import select_keyframes
 from jaxslam.datasets.no_return import detect_no_return
+from jaxslam.datasets.odometry_repair import repair_reverse_odometry
 from jaxslam.datasets.paths import DataFormatError
 from jaxslam.datasets.reader import read_bytes
 
@@ -119,10 +120,12 @@ class CarmenLog:
         max_range: range limit in m (the smallest one if padded scans differ); see
             :func:`load_carmen` for its source.
         laser_offset: (3,) float64 ``(x, y, theta)`` of the laser in the robot frame.
-        odom_poses: (S, 3) float64 robot odometry pose at each scan.
-        laser_poses: (S, 3) float64 laser pose logged with each scan, or None.
+        odom_poses: (S, 3) float64 robot odometry pose at each scan; repaired where
+            the log's poses lose the sign of reversing (``odometry_repair``).
+        laser_poses: (S, 3) float64 laser pose logged with each scan (as logged, not
+            repaired), or None.
         odom_times: (N,) float64 ``ipc_timestamp`` of the ODOM messages.
-        odom_readings: (N, 3) float64 ODOM poses ``(x, y, theta)``.
+        odom_readings: (N, 3) float64 ODOM poses ``(x, y, theta)``, as logged.
         params: PARAM name -> value text (the last one logged wins).
         stats: counted oddities, e.g. ``max_range_readings``, ``nonfinite_readings``,
             ``nonpositive_readings``, ``padded_beams``, ``unknown_messages``,
@@ -135,6 +138,10 @@ class CarmenLog:
             (:func:`detect_no_return`'s result and ``source``); when a pile was found,
             ``max_range`` is its start and ``stats["no_return_sentinel_readings"]``
             counts the readings it turned from hits into "no return".
+        odom_speeds: (N,) float64 logged translational velocity ``tv`` of the ODOM
+            messages, or None.
+        odometry_repair: what the reversing check decided
+            (:func:`jaxslam.datasets.odometry_repair.repair_reverse_odometry`).
     """
 
     path: Path
@@ -158,6 +165,8 @@ class CarmenLog:
     stats: dict[str, int]
     problems: tuple[str, ...] = ()
     no_return: dict[str, Any] = dataclasses.field(default_factory=dict)
+    odom_speeds: np.ndarray | None = None
+    odometry_repair: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     @property
     def num_scans(self) -> int:
@@ -183,6 +192,7 @@ def load_carmen(
     max_backstep: float = 1.0,
     message: str | None = None,
     detect_sentinel: bool = True,
+    repair_odometry: bool = True,
 ) -> CarmenLog:
     """Read a CARMEN log (plain or gzipped) into a :class:`CarmenLog`.
 
@@ -209,6 +219,10 @@ def load_carmen(
             ``stats["other_scan_messages"]``.
         detect_sentinel: look for a "no return" sentinel pile when ``max_range`` is
             not given (see :func:`detect_no_return`; the decision is in ``no_return``).
+        repair_odometry: check the odometry poses against the logged velocities and
+            repair increments that lose the sign of reversing
+            (:mod:`jaxslam.datasets.odometry_repair`; the decision is in
+            ``odometry_repair``, the count in ``stats["odometry_sign_repaired"]``).
 
     Returns:
         The log's scans, poses, masks and counters.
@@ -336,6 +350,13 @@ def load_carmen(
         mismatch = np.abs(relative[:, :2] - offset[:2]).max(axis=1) > _OFFSET_TOL
         mismatch |= np.abs(wrap_angle(relative[:, 2] - offset[2])) > _OFFSET_TOL
     collector.count("laser_offset_mismatch_scans", int(mismatch.sum()))
+    # After the laser offset, which compares the logged poses with each other.
+    if repair_odometry:
+        odom_poses, repair = repair_reverse_odometry(odom_poses, lines.ipc, lines.odom_times, lines.odom_speeds)
+        if repair["repaired"]:
+            collector.count("odometry_sign_repaired", repair["sign_lost"])
+    else:
+        repair = {"checked": False, "reason": "repair off", "repaired": False}
 
     maxima = np.unique(scan_max_range)
     with np.errstate(over="ignore"):
@@ -362,6 +383,8 @@ def load_carmen(
         stats=dict(sorted(collector.stats.items())),
         problems=tuple(collector.problems),
         no_return=no_return,
+        odom_speeds=lines.odom_speeds,
+        odometry_repair=repair,
     )
     for field in dataclasses.fields(log):
         value = getattr(log, field.name)

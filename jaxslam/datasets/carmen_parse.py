@@ -162,15 +162,16 @@ def parse_robotlaser1(parts: list[bytes]) -> dict[str, Any]:
     }
 
 
-def parse_odom(parts: list[bytes]) -> tuple[np.ndarray, float]:
+def parse_odom(parts: list[bytes]) -> tuple[np.ndarray, float, float]:
+    """``(pose (3,), tv, ipc_timestamp)`` of an ODOM line."""
     if len(parts) != _ODOM_FIELDS:
         raise LineError(
             "field_count", f"ODOM needs {_ODOM_FIELDS} fields, but the line has {len(parts)}"
         )
     pose = _finite(_numbers(parts[1:4], "an ODOM pose"), "an ODOM pose")
-    _numbers(parts[4:7], "an ODOM velocity")
+    velocities = _numbers(parts[4:7], "an ODOM velocity")
     ipc, _ = _stamps(parts)
-    return pose, ipc
+    return pose, float(velocities[0]), ipc
 
 
 def parse_param(parts: list[bytes]) -> tuple[str, str]:

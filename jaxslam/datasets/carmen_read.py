@@ -50,6 +50,7 @@ class Lines:
     lines: np.ndarray
     odom: np.ndarray
     odom_times: np.ndarray
+    odom_speeds: np.ndarray
     params: dict[str, tuple[str, int]]
     stats: dict[str, int] = dataclasses.field(default_factory=dict)
 
@@ -159,6 +160,7 @@ def read_lines_fast(text: bytes, scan_type: bytes | None, max_backstep: float) -
         lines=np.array(scan_lines, dtype=np.int64),
         odom=np.ascontiguousarray(odom[:, :3]),
         odom_times=np.ascontiguousarray(odom[:, -2]),
+        odom_speeds=np.ascontiguousarray(odom[:, 3]),
         params=params,
         stats=stats,
     )
@@ -183,6 +185,7 @@ def read_lines_slow(
     line_list: list[int] = []
     odom_list: list[np.ndarray] = []
     odom_time_list: list[float] = []
+    odom_speed_list: list[float] = []
     params: dict[str, tuple[str, int]] = {}
     first_geometry_line = 0
 
@@ -232,10 +235,11 @@ def read_lines_slow(
                 logger_list.append(record["logger"])
                 line_list.append(line_number)
             elif head == b"ODOM":
-                pose, stamp = parse_odom(parts)
+                pose, speed, stamp = parse_odom(parts)
                 if odom_time_list and stamp < odom_time_list[-1]:
                     collector.count("odom_backwards_timestamps")
                 odom_list.append(pose)
+                odom_speed_list.append(speed)
                 odom_time_list.append(stamp)
             elif head == b"PARAM":
                 name, value = parse_param(parts)
@@ -269,6 +273,7 @@ def read_lines_slow(
         lines=np.array(line_list, dtype=np.int64),
         odom=np.array(odom_list, dtype=np.float64).reshape(-1, 3),
         odom_times=np.array(odom_time_list, dtype=np.float64),
+        odom_speeds=np.array(odom_speed_list, dtype=np.float64),
         params=params,
     )
 
