@@ -13,7 +13,8 @@ from jaxslam.datasets.laser_sim import simulate
 from jaxslam.grid import srupf
 from jaxslam.grid.experiment import make_config, map_layout, run_grid_slam
 from jaxslam.grid.filter import init, integrate_scan
-from jaxslam.grid.tracking import constrained_shift, is_keyframe, scan_trajectory, track
+from jaxslam.grid.tracking import constrained_shift, is_keyframe, scan_trajectory
+from jaxslam.grid.tracking import track as _track
 from jaxslam.grid.types import Scan, default_params
 
 
@@ -72,16 +73,19 @@ def _state_and_scans(sim):
     config = make_config("srupf-gm", 2, layout, sim.num_beams, 4096)
     scans = [Scan(np.where(sim.valid[i], sim.ranges[i], 0.0), sim.valid[i], 0.0) for i in range(sim.num_scans)]
     with jax.enable_x64(True):
-        state = init(jax.random.PRNGKey(0), params, config, scans[0], sim.true_poses[0])
+        state = jax.jit(init, static_argnums=2)(jax.random.PRNGKey(0), params, config, scans[0], sim.true_poses[0])
         # Two more scans at their true poses, so that the walls score well (one hit
         # is half of occ_saturation).
         maps = state.maps
+        integrate = jax.jit(integrate_scan, static_argnums=4)
         for i in (1, 2):
-            maps, _, _ = integrate_scan(maps, np.repeat(sim.true_poses[i][None], 2, 0), scans[i], params, config)
+            maps, _, _ = integrate(maps, np.repeat(sim.true_poses[i][None], 2, 0), scans[i], params, config)
     return state._replace(maps=maps), scans, params, config
 
 
 def test_tracking_corrects_a_wrong_increment_and_falls_back_on_a_bad_match(sim):
+    # Compiled once per config (eagerly, op by op in float64, the four calls took 30 s).
+    track = jax.jit(_track, static_argnums=4)
     with jax.enable_x64(True):
         state, scans, params, config = _state_and_scans(sim)
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
