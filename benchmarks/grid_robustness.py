@@ -27,9 +27,10 @@ Logs:
   both the perturbation seed and the filters' seed), scored on relations sampled
   from the corrected poses.
 
-Every filter uses the same defaults on every log: GMapping's keyframe rule (1 m,
-0.5 rad; ``--keyframes dataset`` uses jaxslam's per-dataset rule instead, for
-comparison) and ``run_grid_slam``'s default parameters. GMapping C++ gets the
+Every filter uses the same defaults on every log: ``run_grid_slam``'s default
+parameters and configuration (every scan tracked, GMapping's keyframe rule of 1 m,
+0.5 rad on the tracked motion, :mod:`jaxslam.grid.tracking`); GMapping C++ its own
+defaults. GMapping C++ gets the
 range limit jaxslam's reader took for the log, minus 0.01 (slam_gmapping's rule), and
 runs at the script's own niceness, like the jaxslam workers (run the script under
 ``nice``; compare ``cpu_s`` as well as ``wall_s`` on a shared machine).
@@ -72,7 +73,6 @@ JAX_FILTERS = ("srupf-gm", "gmapping")
 FILTERS = (*JAX_FILTERS, "gmapping-cpp")
 SHORT_S = 1.0
 JUMP_M = 0.3
-GMAPPING_KEYFRAMES = (1.0, 0.5, -1.0)
 
 
 # ---------------------------------------------------------------------------
@@ -96,8 +96,6 @@ def worker(spec: dict) -> dict:
 
         log = laser_corrected_log(load_dataset_log(log), LaserOdometryConfig(**laser))
     t_front = time.perf_counter() - t0
-    rule = spec.get("keyframe_rule")
-    kwargs = {} if rule is None else dict(zip(("linear_update", "angular_update", "temporal_update"), rule))
     result = run_grid_slam(
         log,
         spec["algorithm"],
@@ -107,7 +105,6 @@ def worker(spec: dict) -> dict:
         max_keyframes=spec.get("max_keyframes"),
         params=spec.get("params") or None,
         config=spec.get("config") or None,
-        **kwargs,
     )
     record = result.summary()
     record["process_s"] = time.perf_counter() - t0
@@ -253,8 +250,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", default="0,1,2,3,4")
     parser.add_argument("--filters", default=",".join(FILTERS))
     parser.add_argument("--particles", type=int, default=30)
-    parser.add_argument("--keyframes", choices=("default", "dataset"), default="default",
-                        help="GMapping's 1 m / 0.5 rad rule everywhere (default) or jaxslam's per-dataset rule")
     parser.add_argument("--max-keyframes", type=int, default=None, help="short runs (jaxslam filters only)")
     parser.add_argument("--tag", default="", help="suffix of the JSON and maps folder")
     parser.add_argument("--timeout", type=float, default=1800.0)
@@ -288,7 +283,6 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(args.work) / (args.tag or "default")
     work.mkdir(parents=True, exist_ok=True)
     entries = prepare_logs(args, work)
-    rule = list(GMAPPING_KEYFRAMES) if args.keyframes == "default" else None
     variants: list[tuple[str, dict]] = []
     for item in args.variant:
         name, _, text = item.partition("=")
@@ -304,7 +298,7 @@ def main(argv: list[str] | None = None) -> int:
         "machine": machine_info(),
         "load_avg_at_start": os.getloadavg(),
         "settings": {**vars(args), "filters": filters, "gmapping_cpp": gmapping_note or "built",
-                     "keyframe_rule": rule, "short_relation_s": SHORT_S, "jump_threshold_m": JUMP_M},
+                     "short_relation_s": SHORT_S, "jump_threshold_m": JUMP_M},
         "runs": [],
     }
     rows = payload["runs"]
@@ -333,7 +327,7 @@ def main(argv: list[str] | None = None) -> int:
                     traj, times, kf_i, kf_p = run.trajectory, run.scan_times, run.keyframe_indices, run.keyframe_poses
                 else:
                     spec = {"log": entry["source"], "algorithm": algorithm, "particles": args.particles,
-                            "seed": entry["seed"], "keyframe_rule": rule, "max_keyframes": args.max_keyframes,
+                            "seed": entry["seed"], "max_keyframes": args.max_keyframes,
                             "params": settings.get("params"), "config": settings.get("config"),
                             "laser_odometry": settings.get("laser_odometry"),
                             "out": str(work / f"{tag}.npz"),
