@@ -221,9 +221,9 @@ def run_grid_slam(
             ``resampler``, ``max_points``, ``window_range``).
         progress: show the progress bar.
         linear_update, angular_update, temporal_update: keyframe thresholds (m, rad,
-            s; GMapping's linearUpdate, angularUpdate, temporalUpdate). ``None``: the
-            dataset's rule (:data:`DATASET_KEYFRAMES`), else GMapping's defaults
-            1.0 m, 0.5 rad, no temporal update.
+            s; GMapping's linearUpdate, angularUpdate, temporalUpdate) on the tracked
+            motion (:mod:`jaxslam.grid.tracking`). ``None``: GMapping's defaults
+            1.0 m, 0.5 rad, no temporal update, for every log.
         resolution: cell size (m).
         margin: margin (m) around the odometry box for the starting page table
             (:func:`map_layout`; the maps grow beyond it when needed). ``None``: the
