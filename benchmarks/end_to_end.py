@@ -26,6 +26,11 @@ whole process, ``gmapping_slam_s`` its own SLAM-loop time. ``speedup_process`` i
 GMapping's whole process over jaxslam's, ``speedup_loop`` GMapping's SLAM loop over
 jaxslam's filter loop. MRPT is not run here (see ``benchmarks/grid_vs_mrpt.py``).
 
+``--old-tree DIR`` adds the mode ``old``: the same command run from another checkout
+(for example the code the issue measured, before the cache and the host-loop work),
+without the cache flags it may not know, right before the cold run of each case, so
+that the old and new numbers come from the same run.
+
 The machine may be shared: only ratios measured in the same run are meaningful; the
 load average before and after each run is recorded. Writes
 benchmarks/results/end_to_end.json (rows, machine, versions, command).
@@ -61,23 +66,27 @@ CASES = {
 SUMMARY_FIELDS = ("load_s", "compile_s", "wall_s", "output_s", "total_s")
 
 
-def run_jaxslam(case: str, cache: Path, out: Path, timeout: float) -> dict:
+def run_jaxslam(case: str, cache: Path | None, out: Path, timeout: float, tree: Path = ROOT) -> dict:
+    """One ``jaxslam run`` process from the checkout ``tree``; ``cache`` None: no cache
+    flag (an old checkout that has no cache)."""
     dataset, algorithm, particles, _ = CASES[case]
     cmd = ["nice", "-n", "10", sys.executable, "-m", "jaxslam.cli", "run", "--dataset", dataset,
-           "--algorithm", algorithm, "--particles", str(particles), "--out", str(out), "--no-progress",
-           "--cache-dir", str(cache)]
-    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+           "--algorithm", algorithm, "--particles", str(particles), "--out", str(out), "--no-progress"]
+    if cache is not None:
+        cmd += ["--cache-dir", str(cache)]
+    env = {**os.environ, "PYTHONPATH": str(tree) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     load_before = os.getloadavg()[0]
     started = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout, cwd=str(ROOT))
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout, cwd=str(tree))
     process_s = time.perf_counter() - started
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr[-2000:]}")
     summary = json.loads((out / "summary.json").read_text())
     row = {"process_s": process_s, **{k: summary.get(k) for k in SUMMARY_FIELDS}}
     row["overhead_s"] = process_s - summary["wall_s"]
-    row["compiled"] = summary["compilations"]["compiled"]
-    row["cache_hits"] = summary["compilations"]["cache_hits"]
+    compilations = summary.get("compilations") or {}  # an old checkout has no count
+    row["compiled"] = compilations.get("compiled")
+    row["cache_hits"] = compilations.get("cache_hits")
     for key in ("trans_err_mean_m", "rot_err_mean_deg", "gps_mean_m", "keyframes", "steps"):
         if key in summary:
             row[key] = summary[key]
@@ -123,7 +132,10 @@ def main() -> None:
     parser.add_argument("--workdir", type=Path, default=None, help="outputs and caches (default: a temp folder)")
     parser.add_argument("--timeout", type=float, default=3600.0, help="seconds per process")
     parser.add_argument("--json", default="end_to_end", help="result name: benchmarks/results/NAME.json")
+    parser.add_argument("--old-tree", type=Path, default=None,
+                        help="another checkout to run first as mode 'old' (e.g. a git worktree of an older commit)")
     args = parser.parse_args()
+    modes = (["old"] if args.old_tree else []) + list(args.modes)
     cases = list(CASES) if args.cases == ["all"] else args.cases
     unknown = [c for c in cases if c not in CASES]
     if unknown:
@@ -136,11 +148,14 @@ def main() -> None:
         cache = workdir / f"cache_{case}"
         shutil.rmtree(cache, ignore_errors=True)
         row: dict = {"case": case}
-        for mode in args.modes:
-            result = run_jaxslam(case, cache, workdir / f"{case}_{mode}", args.timeout)
+        for mode in modes:
+            if mode == "old":
+                result = run_jaxslam(case, None, workdir / f"{case}_old", args.timeout, tree=args.old_tree)
+            else:
+                result = run_jaxslam(case, cache, workdir / f"{case}_{mode}", args.timeout)
             row.update({f"{mode}_{k}": v for k, v in result.items()})
             print(f"{case} {mode}: process {result['process_s']:.1f} s, filter {result['wall_s']:.1f} s, "
-                  f"compile {result['compile_s']:.1f} s ({result['compiled']} compiled, "
+                  f"compile {result['compile_s']} s ({result['compiled']} compiled, "
                   f"{result['cache_hits']} from cache)", flush=True)
         if CASES[case][3] is not None and not args.no_gmapping:
             try:
@@ -148,22 +163,22 @@ def main() -> None:
             except Exception as error:  # not built, failed: say so in the table
                 row["gmapping_error"] = f"{type(error).__name__}: {error}"
             if "gmapping_process_s" in row:
-                for mode in args.modes:
+                for mode in modes:
                     row[f"{mode}_speedup_process"] = row["gmapping_process_s"] / row[f"{mode}_process_s"]
                 row["speedup_loop"] = row["gmapping_slam_s"] / row[f"{args.modes[-1]}_wall_s"]
                 print(f"{case} GMapping C++: process {row['gmapping_process_s']:.1f} s, "
                       f"SLAM {row['gmapping_slam_s']:.1f} s", flush=True)
         rows.append(row)
-        write_json(args.json, {"rows": rows, "workdir": str(workdir)})
+        write_json(args.json, {"rows": rows, "workdir": str(workdir), "old_tree": str(args.old_tree or "")})
 
     columns = ["case"]
-    for mode in args.modes:
+    for mode in modes:
         columns += [f"{mode}_process_s", f"{mode}_load_s", f"{mode}_compile_s", f"{mode}_wall_s",
                     f"{mode}_output_s", f"{mode}_overhead_s", f"{mode}_compiled"]
-    columns += ["gmapping_process_s", "gmapping_slam_s"] + [f"{m}_speedup_process" for m in args.modes]
+    columns += ["gmapping_process_s", "gmapping_slam_s"] + [f"{m}_speedup_process" for m in modes]
     columns += ["speedup_loop"]
     print_table(rows, columns)
-    path = write_json(args.json, {"rows": rows, "workdir": str(workdir)})
+    path = write_json(args.json, {"rows": rows, "workdir": str(workdir), "old_tree": str(args.old_tree or "")})
     print(f"wrote {path}")
 
 
