@@ -67,7 +67,6 @@ def _ensemble(keys, controls, observations, obs_mask, true_landmarks, params, co
             counts = jnp.full((n,), count, jnp.int32)
             state = state._replace(landmarks=table._replace(means=means, covs=covs, active=active,
                                                             evidence=evidence, count=counts))
-            del cap
 
         observation = feature_filter.Observation(observations, obs_mask)
         _, infos = scan_steps(feature_filter.step, key, state, controls, observation, params, config)
