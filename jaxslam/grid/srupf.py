@@ -46,6 +46,16 @@ built at :math:`\nu`. With ``"posterior"`` the copies of a resampled particle on
 separate by the small posterior spread, so ``"prior"`` is the default for ``pc``;
 ``npc`` (no corrector) uses ``"posterior"``. Weights, map integration and selective
 resampling are as in GMapping (:func:`jaxslam.grid.filter.finish_step`).
+
+*Constrained correction* (``config.constrain_matches``, default on; not in the
+paper). :math:`\nu` keeps the corrector's heading, but its position moves from the
+start only along the directions where the score is curved at the match
+(:func:`jaxslam.grid.tracking.constrained_shift`, the test the per-scan tracking
+uses): in a corridor the hill climb slides along the axis on map noise, by up to its
+reach, and such slides at keyframes were what broke single seeds on Intel. Measured
+(30 particles, defaults otherwise, relations error mean over seeds 0-4): Intel
+0.156 / 0.037 / 0.037 / 0.038 / 0.032 m off, 0.035 / 0.031 / 0.036 / 0.042 / 0.038 m
+on; FR079 0.035-0.038 m either way.
 """
 
 from __future__ import annotations
@@ -81,7 +91,7 @@ from jaxslam.grid.types import (
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
-from jaxslam.grid.tracking import per_scan
+from jaxslam.grid.tracking import constrained_shift, per_scan
 from jaxslam.models.odometry import (
     Prediction,
     motion_noise_sqrt,
@@ -179,6 +189,9 @@ def particle_update(
             config.refine_steps,
             prior_mean=prediction.mean,
         )
+        if config.constrain_matches:
+            shift = constrained_shift(score_fn, best, start, best_score, count, params)
+            best = jnp.concatenate([start[:2] + shift, best[2:]])
         accept = best_score / count > params.min_score
         nu = jnp.where(accept, best, start)
     elif config.correction == "npc":

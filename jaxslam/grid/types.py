@@ -48,6 +48,9 @@ class GridSlamConfig:
         tracking: match every scan between keyframes against the best particle's
             map (:mod:`jaxslam.grid.tracking`); False moves the particles by the
             odometry alone between keyframes (GMapping).
+        constrain_matches: SRUPF-GM only: the keyframe's pose correction moves the
+            position only along the directions the scan constrains
+            (:func:`jaxslam.grid.tracking.constrained_shift`), as the tracking does.
     """
 
     num_particles: int
@@ -65,6 +68,7 @@ class GridSlamConfig:
     free_check: bool = True
     window_range: float = 20.0
     tracking: bool = True
+    constrain_matches: bool = True
 
     def __post_init__(self):
         choices = {
