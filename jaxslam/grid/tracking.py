@@ -57,13 +57,20 @@ no tracking (GMapping's rule)      0.044 m                 3.3-3.6 m
 tracking, position unconstrained   0.117 m     0.426 m     0.037 m
 tracking, heading only             --          0.038 m     1.76 m
 tracking, default (curvature 20)   0.156 m     0.037 m     0.56 m
++ reversing repair (FR079)                                 0.036 m
++ constrained keyframe correction  0.035 m     0.031 m     0.038 m
 =================================  ==========  ==========  ==========
 
+The last two rows are today's defaults: the CARMEN reader repairs FR079's odometry,
+which loses the sign of reversing (:mod:`jaxslam.datasets.odometry_repair`; that,
+not missed turns, was what broke FR079), and SRUPF-GM's keyframe correction moves
+the position only along constrained directions too (``config.constrain_matches``).
+
 The unconstrained variant's Intel failures were single-scan slides of 0.4 m in
-corridors (removed by the curvature test); what remains are wrong loop closures at
-keyframes (corrections of 0.4-0.6 m by the keyframe step late in the run), which vary
-from seed to seed. One seed per cell cannot rank the variants finely; every tracking
-variant keeps FR079 within a few decimetres where the odometry rule loses it.
+corridors (removed by the curvature test). Intel seed 0's remaining failure was the
+same slide one level up: corrections of 0.4-0.7 m along a corridor by the keyframe
+step's own matcher late in the run, removed by the same test there
+(``constrain_matches``). The five-seed table of every log is in the README.
 
 The pose of every scan is the filter's own: the best lineage's keyframe pose composed
 with the tracked motion :math:`m_t` of the scan (``Info.motion``), see
