@@ -19,7 +19,10 @@ landmark table (:func:`jaxslam.feature.landmarks.local_slots`):
    observations between the gates are ignored.
 
 The sigma-point predictions of the chosen candidate are returned so the proposal
-reuses them (no second evaluation of the observation model).
+reuses them (no second evaluation of the observation model), and so is the log
+predictive density of each observation under its most likely candidate, gate or no
+gate, :math:`\max_c \log \mathcal N(\nu_c; 0, \mathcal S_c)` (``-inf`` without a
+candidate), for the mixture likelihood of :mod:`jaxslam.feature.particle`.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from jaxslam.models.range_bearing import inverse_observe
 
 
 class Association(NamedTuple):
-    """Association of the observations ``(k,)`` of one scan for one particle.
+    r"""Association of the observations ``(k,)`` of one scan for one particle.
 
     Attributes:
         slots: ``(k,)`` table slot of the matched landmark (``C`` if none).
@@ -49,6 +52,9 @@ class Association(NamedTuple):
         sigma_obs: ``(k, 11, 2)`` sigma-point predictions of the chosen candidate.
         landmark_means: ``(k, 2)`` chosen landmark means.
         landmark_chols: ``(k, 2, 2)`` their Cholesky factors.
+        log_density: ``(k,)`` :math:`\log \mathcal N(\nu; 0, \mathcal S)` of the
+            candidate of smallest :math:`d^2 + \log|\mathcal S|`, inside the gates or
+            not (``-inf`` if the observation has no candidate).
     """
 
     slots: Array
@@ -58,6 +64,7 @@ class Association(NamedTuple):
     sigma_obs: Array
     landmark_means: Array
     landmark_chols: Array
+    log_density: Array
 
 
 def _smallest(values: Array, k: int) -> tuple[Array, Array]:
@@ -122,6 +129,12 @@ def associate(
     matched = jnp.any(gated, axis=1)
     rows = jnp.arange(observations.shape[0])
     best_maha = jnp.min(maha, axis=1)
+    # Double where: a candidate-less row has maha = inf; its cotangent must stay 0.
+    densest = jnp.min(jnp.where(cand_valid, maha + s_logdet, jnp.inf), axis=1)
+    has_cand = jnp.any(cand_valid, axis=1)
+    log_density = jnp.where(
+        has_cand, -0.5 * jnp.where(has_cand, densest, 0.0) - jnp.log(2.0 * jnp.pi).astype(dtype), -jnp.inf
+    )
     chosen_maha = maha[rows, best]
     new = mask & (best_maha > params.gate_new)
     slots = jnp.where(matched, local[cand[rows, best]], capacity)
@@ -143,4 +156,5 @@ def associate(
         sigma_obs=sig[rows, best],
         landmark_means=cand_means[rows, best],
         landmark_chols=cand_chols[rows, best],
+        log_density=log_density,
     )

@@ -51,6 +51,8 @@ class Params(NamedTuple):
         new_evidence: evidence of a newly created landmark.
         prune_threshold: a landmark whose evidence falls below this is deleted
             (each match adds 1, each miss while expected visible subtracts 1).
+        detection_probability: :math:`P_D` of the mixture likelihood
+            (``Config.likelihood = "mixture"``; unused by the paper's weights).
     """
 
     speed_std: Array | float = 2.0
@@ -72,15 +74,17 @@ class Params(NamedTuple):
     visibility_margin: Array | float = 2.0
     new_evidence: Array | float = 1.0
     prune_threshold: Array | float = -1e9
+    detection_probability: Array | float = 0.9
 
 
 PROPOSALS = ("rb", "erb")
 UPDATES = ("batch", "sequential")
+LIKELIHOODS = ("gated", "mixture")
 
 
 @dataclasses.dataclass(frozen=True)
 class Config:
-    """Static configuration (shapes and branches); hashable, passed to ``jit`` as static.
+    r"""Static configuration (shapes and branches); hashable, passed to ``jit`` as static.
 
     Attributes:
         num_particles: number of particles ``N``.
@@ -97,6 +101,14 @@ class Config:
         skip_stationary: skip a scan whose controls all have zero speed (UFastSLAM).
         compare_proposals: also compute the other proposal's covariance for
             :class:`Info` (free in batch mode; a second pass in sequential mode).
+        likelihood: the weight increment. ``"gated"`` (the paper's eq. 11): the
+            joint innovation likelihood of the matched observations; unmatched ones
+            contribute nothing. ``"mixture"``: every observation contributes
+            :math:`\log(P_D\,\mathcal N(\nu; 0, \mathcal S) + (1 - P_D)\,\lambda)`
+            with its most likely candidate and the uniform density
+            :math:`\lambda = 1 / (r_{max} \cdot \mathrm{fov})` of a new landmark or
+            clutter in range and bearing (see :mod:`jaxslam.feature.particle`; the
+            objective of :mod:`jaxslam.calibrate`).
     """
 
     num_particles: int = 100
@@ -108,12 +120,15 @@ class Config:
     resampler: str = "systematic"
     skip_stationary: bool = True
     compare_proposals: bool = True
+    likelihood: str = "gated"
 
     def __post_init__(self):
         if self.proposal not in PROPOSALS:
             raise ValueError(f"proposal must be one of {PROPOSALS}, got {self.proposal!r}")
         if self.update not in UPDATES:
             raise ValueError(f"update must be one of {UPDATES}, got {self.update!r}")
+        if self.likelihood not in LIKELIHOODS:
+            raise ValueError(f"likelihood must be one of {LIKELIHOODS}, got {self.likelihood!r}")
         if min(self.num_particles, self.capacity, self.local_size, self.candidates) < 1:
             raise ValueError("num_particles, capacity, local_size and candidates must be >= 1")
         if self.candidates > self.local_size:
