@@ -11,7 +11,12 @@ Parts (``--part``, repeatable; default all):
 * ``vp``: Victoria Park: calibrate on the first half (the first ``--vp-window`` scans
   of it), then run the whole log with the paper's noise and with the calibrated noise
   (``--vp-particles`` particles, ``--vp-seeds`` seeds, one ensemble each) and compare
-  the second half's log-likelihood estimate and GPS error.
+  the second half's log-likelihood estimate (under both weights, the mixture
+  likelihood that calibration maximises and the paper's gated weights) and GPS error
+  (the paper's filter, gated weights, with either set of noise levels).
+
+``--likelihood`` picks the objective (``mixture``, the default of
+:func:`jaxslam.calibrate.calibrate`, or the paper's ``gated`` weights).
 
 Writes ``benchmarks/results/calibration.json`` and ``calibration_*.png``.
 """
@@ -19,6 +24,7 @@ Writes ``benchmarks/results/calibration.json`` and ``calibration_*.png``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -39,6 +45,18 @@ from jaxslam.feature.params import Config  # noqa: E402
 NAMES = L.NOISE_NAMES
 
 
+def progress(label: str):
+    """Adam-step progress line (calibrate's callback)."""
+    start = time.perf_counter()
+
+    def show(step, log_likelihood, values):
+        levels = ", ".join(f"{n} {v:.4g}" for n, v in zip(NAMES, values))
+        print(f"  {label} step {step + 1}: log Z/scan {log_likelihood:.4f}; {levels} "
+              f"({time.perf_counter() - start:.0f} s)", flush=True)
+
+    return show
+
+
 def part_sim(args) -> dict:
     from jaxslam.datasets.landmark_sim import simulate
 
@@ -50,14 +68,15 @@ def part_sim(args) -> dict:
         start = {n: v * factor for n, v in truth.items()}
         res = calibrate(seq, "erb-upf", particles=args.sim_particles, filters=args.filters, steps=args.sim_steps,
                         learning_rate=args.learning_rate, params=start, seed=args.seed,
-                        config=dict(capacity=96, local_size=48))
+                        config=dict(capacity=96, local_size=48), likelihood=args.likelihood,
+                        callback=progress(f"sim x{factor:.3g}"))
         ratios = {n: res.after[n] / truth[n] for n in NAMES}
         runs.append({"start_factor": factor, "after": res.after, "ratio_to_true": ratios,
                      "within_20pct": {n: abs(r - 1) <= 0.2 for n, r in ratios.items()},
                      "log_likelihood": res.log_likelihood, "parameter_trajectory": res.trajectory,
                      "gradient_variance": res.gradient_variance, "compile_s": res.compile_s, "time_s": res.wall_s})
         print(f"start x{factor:.3g}: " + ", ".join(f"{n} {ratios[n]:.3f}" for n in NAMES), flush=True)
-    return {"truth": truth, "window": args.sim_window, "particles": args.sim_particles, "filters": args.filters,
+    return {"truth": truth, "likelihood": args.likelihood, "window": args.sim_window, "particles": args.sim_particles, "filters": args.filters,
             "steps": args.sim_steps, "learning_rate": args.learning_rate, "runs": runs}
 
 
@@ -66,7 +85,7 @@ def part_time(args) -> dict:
 
     seq = victoria_park.load_sequence(max_steps=args.time_scans)
     params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params_for(seq))
-    cfg = Config(num_particles=args.time_particles)
+    cfg = Config(num_particles=args.time_particles, likelihood=args.likelihood)
     program = value_and_grads(cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), 1)
     theta = jnp.asarray(L.log_noise_of(params), jnp.float32)
@@ -105,19 +124,31 @@ def _evaluate(seq, params, args, half) -> dict:
     p = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params)
     data = (jnp.asarray(seq.controls, jnp.float32), jnp.asarray(seq.observations, jnp.float32),
             jnp.asarray(seq.obs_mask), jnp.zeros(3, jnp.float32))
-    ll_fn = jax.jit(jax.vmap(lambda k: L.log_likelihoods(k, p, cfg, *data, checkpoint=False)))
-    incs = np.asarray(ll_fn(jnp.stack([jax.random.PRNGKey(s) for s in seeds])))
+    keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+    incs = {}
+    for lik in ("mixture", "gated"):
+        c = dataclasses.replace(cfg, likelihood=lik)
+        ll_fn = jax.jit(jax.vmap(lambda k, c=c: L.log_likelihoods(k, p, c, *data, checkpoint=False)))
+        incs[lik] = np.asarray(ll_fn(keys))
     rows = []
     second = seq.times >= seq.times[half]
     for i, seed in enumerate(seeds):
         err = gps_error(seq.times, ens.trajectory[i], seq.gps_times, seq.gps_xy)
         later = err["used"] & (seq.gps_times >= seq.times[half])
-        rows.append({"seed": seed, "heldout_log_likelihood_per_scan": float(incs[i][second].mean()),
+        rows.append({"seed": seed, "heldout_log_likelihood_per_scan": float(incs[args.likelihood][i][second].mean()),
+                     "heldout_mixture_log_likelihood_per_scan": float(incs["mixture"][i][second].mean()),
+                     "heldout_gated_log_likelihood_per_scan": float(incs["gated"][i][second].mean()),
                      "heldout_gps_mean_m": float(np.nanmean(err["errors_m"][later])),
                      "gps_mean_m": float(err["gps_mean_m"])})
-    return {"per_seed": rows,
-            "heldout_log_likelihood_per_scan": float(np.mean([r["heldout_log_likelihood_per_scan"] for r in rows])),
-            "heldout_gps_mean_m": float(np.mean([r["heldout_gps_mean_m"] for r in rows])),
+
+    def mean(key):
+        return float(np.mean([r[key] for r in rows]))
+
+    return {"per_seed": rows, "likelihood": args.likelihood,
+            "heldout_log_likelihood_per_scan": mean("heldout_log_likelihood_per_scan"),
+            "heldout_mixture_log_likelihood_per_scan": mean("heldout_mixture_log_likelihood_per_scan"),
+            "heldout_gated_log_likelihood_per_scan": mean("heldout_gated_log_likelihood_per_scan"),
+            "heldout_gps_mean_m": mean("heldout_gps_mean_m"),
             "heldout_gps_mean_sd_m": float(np.std([r["heldout_gps_mean_m"] for r in rows], ddof=1))
             if len(rows) > 1 else None}
 
@@ -128,11 +159,13 @@ def part_vp(args) -> dict:
     seq = victoria_park.load_sequence()
     half = seq.controls.shape[0] // 2
     res = calibrate(seq, "erb-upf", particles=args.vp_cal_particles, filters=args.filters, steps=args.vp_steps,
-                    learning_rate=args.learning_rate, window=min(args.vp_window, half), seed=args.seed)
+                    learning_rate=args.learning_rate, window=min(args.vp_window, half), seed=args.seed,
+                    likelihood=args.likelihood, callback=progress("vp"))
     print("calibrated:", res.after, flush=True)
     paper = params_for(seq)
     calibrated = params_for(seq, **res.after)
-    out = {"calibration": {"window": res.window, "particles": args.vp_cal_particles, "filters": args.filters,
+    out = {"calibration": {"likelihood": args.likelihood, "window": res.window, "particles": args.vp_cal_particles,
+                           "filters": args.filters, "parameter_trajectory": res.trajectory,
                            "steps": args.vp_steps, "before": res.before, "after": res.after,
                            "log_likelihood": res.log_likelihood, "gradient_variance": res.gradient_variance,
                            "compile_s": res.compile_s, "time_s": res.wall_s},
@@ -143,7 +176,7 @@ def part_vp(args) -> dict:
     return out
 
 
-def plot(payload: dict) -> None:
+def plot(payload: dict, name: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -170,15 +203,24 @@ def plot(payload: dict) -> None:
         axes[1].legend(fontsize=8)
         axes[1].set_title("simulator recovery (solid: from 3x, dashed: from 1/3x)")
         fig.tight_layout()
-        save(fig, RESULTS / "calibration_sim.png")
+        save(fig, RESULTS / f"{name}_sim.png")
     if "vp" in payload:
-        fig, ax = plt.subplots(figsize=(6, 4))
-        ax.plot(payload["vp"]["calibration"]["log_likelihood"])
-        ax.set_xlabel("Adam step")
-        ax.set_ylabel("log Z-hat / scan")
-        ax.set_title("Victoria Park, first half")
+        cal = payload["vp"]["calibration"]
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        axes[0].plot(cal["log_likelihood"])
+        axes[0].set_xlabel("Adam step")
+        axes[0].set_ylabel(f"log Z-hat / scan ({cal.get('likelihood', 'gated')} likelihood)")
+        axes[0].set_title(f"Victoria Park, first {cal['window']} scans")
+        if "parameter_trajectory" in cal:
+            path = np.asarray(cal["parameter_trajectory"])
+            for i, n in enumerate(NAMES):
+                axes[1].plot(path[:, i] / cal["before"][n], label=n)
+            axes[1].set_yscale("log")
+            axes[1].set_xlabel("Adam step")
+            axes[1].set_ylabel("value / the paper's value")
+            axes[1].legend(fontsize=8)
         fig.tight_layout()
-        save(fig, RESULTS / "calibration_vp.png")
+        save(fig, RESULTS / (f"{name}_vp.png" if "sim" in payload else f"{name}.png"))
 
 
 def main() -> None:
@@ -198,6 +240,7 @@ def main() -> None:
     ap.add_argument("--vp-steps", type=int, default=50)
     ap.add_argument("--vp-particles", type=int, default=100)
     ap.add_argument("--vp-seeds", type=int, default=5)
+    ap.add_argument("--likelihood", choices=["mixture", "gated"], default="mixture")
     ap.add_argument("--name", default="calibration")
     args = ap.parse_args()
     parts = args.part or ["sim", "time", "vp"]
@@ -209,7 +252,7 @@ def main() -> None:
         rows = [{"start": f"x{r['start_factor']:.3g}", **{n: round(r["ratio_to_true"][n], 3) for n in NAMES}}
                 for r in payload["sim"]["runs"]]
         print_table(rows, ["start"] + list(NAMES))
-    plot(payload)
+    plot(payload, args.name)
 
 
 if __name__ == "__main__":

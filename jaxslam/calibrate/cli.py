@@ -31,6 +31,9 @@ def add_parser(sub, positive_int, nonneg_int) -> None:
     cal.add_argument("--learning-rate", type=float, default=0.05, help="Adam step size on the log noise levels")
     cal.add_argument("--window", type=positive_int, default=200, help="the first WINDOW scans of the log are used")
     cal.add_argument("--seed", type=nonneg_int, default=0, help="base seed (the simulator's world too)")
+    cal.add_argument("--likelihood", choices=["mixture", "gated"], default="mixture",
+                     help="the weight whose log-likelihood is maximised: the detection/clutter mixture (default) "
+                          "or the paper's gated weights (biased towards small measurement noise)")
     cal.add_argument("--float64", action="store_true", help="double precision")
     cal.add_argument("--no-plots", action="store_true", help="skip calibration.png")
 
@@ -59,7 +62,7 @@ def run(args) -> dict[str, Any]:
         result = calibrate(
             sequence, args.algorithm, particles=args.particles, filters=args.filters, steps=args.steps,
             learning_rate=args.learning_rate, window=args.window, seed=args.seed,
-            dtype=jnp.float64 if args.float64 else jnp.float32,
+            dtype=jnp.float64 if args.float64 else jnp.float32, likelihood=args.likelihood,
         )
     payload = {"dataset": info.name, "algorithm": args.algorithm, "particles": args.particles, "seed": args.seed,
                **result.to_json()}
@@ -80,6 +83,9 @@ def plot_curve(payload: dict[str, Any], path: Path) -> Path:
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.8))
     ax1.plot(payload["log_likelihood"])
+    if "best_step" in payload:
+        ax1.axvline(payload["best_step"], color="0.6", ls=":", label="best step (params_after)")
+        ax1.legend(fontsize=8)
     ax1.set_xlabel("Adam step")
     ax1.set_ylabel("log Z-hat / scan (mean over filters)")
     ax1.set_title(f"{payload['algorithm']}, {payload['dataset']}")

@@ -43,7 +43,10 @@ def test_calibrate_then_run_with_params(tmp_path):
     payload = json.loads((out / "calibration.json").read_text())
     assert len(payload["log_likelihood"]) == 3
     assert (out / "calibration.png").exists()
-    assert payload["params_after"] != payload["params_before"]
+    assert payload["params_last"] != payload["params_before"]
+    best = payload["parameter_trajectory"][payload["best_step"]]
+    assert [payload["params_after"][n] for n in payload["names"]] == pytest.approx(best)
+    assert payload["log_likelihood"][payload["best_step"]] == max(payload["log_likelihood"])
     run_out = tmp_path / "run"
     assert main(["run", "--out", str(run_out), "--particles", "4", "--max-steps", "12", "--no-plots",
                  "--no-progress", "--params", str(out / "calibration.json")]) == 0
