@@ -13,7 +13,10 @@ Parts (``--part``, repeatable; default all):
   (``--vp-particles`` particles, ``--vp-seeds`` seeds, one ensemble each) and compare
   the second half's log-likelihood estimate (under both weights, the mixture
   likelihood that calibration maximises and the paper's gated weights) and GPS error
-  (the paper's filter, gated weights, with either set of noise levels).
+  (the paper's filter, gated weights, with either set of noise levels). The
+  calibrated levels are the best iterate (largest objective); the last iterate is
+  evaluated too when it differs. ``--vp-from JSON`` re-evaluates a calibration stored
+  by an earlier run instead of running it again.
 
 ``--likelihood`` picks the objective (``mixture``, the default of
 :func:`jaxslam.calibrate.calibrate`, or the paper's ``gated`` weights).
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -158,19 +162,32 @@ def part_vp(args) -> dict:
 
     seq = victoria_park.load_sequence()
     half = seq.controls.shape[0] // 2
-    res = calibrate(seq, "erb-upf", particles=args.vp_cal_particles, filters=args.filters, steps=args.vp_steps,
-                    learning_rate=args.learning_rate, window=min(args.vp_window, half), seed=args.seed,
-                    likelihood=args.likelihood, callback=progress("vp"))
-    print("calibrated:", res.after, flush=True)
-    paper = params_for(seq)
-    calibrated = params_for(seq, **res.after)
-    out = {"calibration": {"likelihood": args.likelihood, "window": res.window, "particles": args.vp_cal_particles,
-                           "filters": args.filters, "parameter_trajectory": res.trajectory,
-                           "steps": args.vp_steps, "before": res.before, "after": res.after,
-                           "log_likelihood": res.log_likelihood, "gradient_variance": res.gradient_variance,
-                           "compile_s": res.compile_s, "time_s": res.wall_s},
-           "half_scan": int(half), "particles": args.vp_particles, "seeds": args.vp_seeds}
-    for name, params in (("paper", paper), ("calibrated", calibrated)):
+    if args.vp_from:
+        # Re-evaluate a stored calibration (its parameter trajectory and curve) without
+        # running it again.
+        try:
+            cal = json.loads(Path(args.vp_from).read_text())["vp"]["calibration"]
+            curve, path = cal["log_likelihood"], cal["parameter_trajectory"]
+        except (OSError, ValueError, KeyError) as error:
+            raise SystemExit(f"{args.vp_from}: no Victoria Park calibration in it ({error})") from error
+        best = int(np.argmax(curve))  # as calibrate(): curve[i] is the objective at path[i]
+        cal = {**cal, "from": str(args.vp_from), "best_step": best,
+               "after": dict(zip(NAMES, path[best])), "last": dict(zip(NAMES, path[-1]))}
+    else:
+        res = calibrate(seq, "erb-upf", particles=args.vp_cal_particles, filters=args.filters, steps=args.vp_steps,
+                        learning_rate=args.learning_rate, window=min(args.vp_window, half), seed=args.seed,
+                        likelihood=args.likelihood, callback=progress("vp"))
+        cal = {"likelihood": args.likelihood, "window": res.window, "particles": args.vp_cal_particles,
+               "filters": args.filters, "parameter_trajectory": res.trajectory,
+               "steps": args.vp_steps, "before": res.before, "after": res.after, "last": res.last,
+               "best_step": res.best_step, "log_likelihood": res.log_likelihood,
+               "gradient_variance": res.gradient_variance, "compile_s": res.compile_s, "time_s": res.wall_s}
+    print("calibrated (best iterate, step %d):" % cal["best_step"], cal["after"], flush=True)
+    out = {"calibration": cal, "half_scan": int(half), "particles": args.vp_particles, "seeds": args.vp_seeds}
+    candidates = [("paper", params_for(seq)), ("calibrated", params_for(seq, **cal["after"]))]
+    if cal["last"] != cal["after"]:
+        candidates.append(("calibrated_last", params_for(seq, **cal["last"])))
+    for name, params in candidates:
         out[name] = _evaluate(seq, params, args, half)
         print(name, out[name]["heldout_log_likelihood_per_scan"], out[name]["heldout_gps_mean_m"], flush=True)
     return out
@@ -241,6 +258,8 @@ def main() -> None:
     ap.add_argument("--vp-particles", type=int, default=100)
     ap.add_argument("--vp-seeds", type=int, default=5)
     ap.add_argument("--likelihood", choices=["mixture", "gated"], default="mixture")
+    ap.add_argument("--vp-from", default=None, metavar="JSON",
+                    help="vp part: evaluate the calibration stored in JSON instead of running it again")
     ap.add_argument("--name", default="calibration")
     args = ap.parse_args()
     parts = args.part or ["sim", "time", "vp"]
