@@ -228,6 +228,9 @@ def plot(payload: dict, name: str) -> None:
         axes[0].set_xlabel("Adam step")
         axes[0].set_ylabel(f"log Z-hat / scan ({cal.get('likelihood', 'gated')} likelihood)")
         axes[0].set_title(f"Victoria Park, first {cal['window']} scans")
+        if "best_step" in cal:
+            axes[0].axvline(cal["best_step"], color="0.6", lw=0.8, label=f"best iterate (step {cal['best_step']})")
+            axes[0].legend(fontsize=8)
         if "parameter_trajectory" in cal:
             path = np.asarray(cal["parameter_trajectory"])
             for i, n in enumerate(NAMES):
