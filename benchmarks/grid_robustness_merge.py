@@ -1,0 +1,107 @@
+"""Merge the JSON files of several ``grid_robustness.py`` runs into one table and plot.
+
+A full suite (every log, both levels, 5 seeds, three filters) takes hours on a 2-core
+machine, so it is run in parts (``--tag``). This script reads the parts in the order
+given; a run of the same ``(log, filter, seed)`` in a later file replaces the earlier
+one (so a part re-run after a change of defaults supersedes the old runs), and every
+run keeps the name of the file it came from. It prints the per-run and per-cell
+tables (:func:`grid_robustness.summarize`: the worst seed counts), writes
+``benchmarks/results/grid_robustness_merged[_NAME].json`` and a plot of the relations
+error of every seed, log by log, one marker per filter (logs without ground truth
+are listed, not plotted).
+
+    python benchmarks/grid_robustness_merge.py benchmarks/results/grid_robustness_{defaults,perturbed_high}.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import machine_info, print_table  # noqa: E402
+from grid_robustness import FILTERS, RESULTS, summarize  # noqa: E402
+
+
+def merge(paths: list[Path]) -> tuple[list[dict], list[str]]:
+    """Runs of ``paths`` in order, later ``(log, filter, seed)`` replacing earlier ones;
+    also the list of replaced runs (for the record)."""
+    by_key: dict[tuple, dict] = {}
+    replaced: list[str] = []
+    for path in paths:
+        try:
+            payload = json.loads(path.read_text())
+            runs = payload["runs"]
+        except (OSError, ValueError, KeyError) as error:
+            raise SystemExit(f"{path}: not a grid_robustness result ({error})") from error
+        for run in runs:
+            key = (run["log"], run["filter"], run["seed"])
+            if key in by_key:
+                replaced.append(f"{key[0]} {key[1]} seed {key[2]}: {by_key[key]['source']} -> {path.name}")
+            by_key[key] = {**run, "source": path.name}
+    order = {f: i for i, f in enumerate(FILTERS)}
+    rows = sorted(by_key.values(), key=lambda r: (r["log"], order.get(r["filter"].split("[")[0], 99), r["seed"]))
+    return rows, replaced
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Relations error (mean over relations) of each seed, per log and filter."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scored = [r for r in rows if r.get("mean_m") is not None and "error" not in r]
+    logs = sorted({r["log"] for r in scored})
+    filters = [f for f in FILTERS if any(r["filter"] == f for r in scored)]
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(logs) + 2), 4.2))
+    markers = {"srupf-gm": "o", "gmapping": "s", "gmapping-cpp": "^"}
+    width = 0.8 / max(1, len(filters))
+    for j, name in enumerate(filters):
+        for i, log in enumerate(logs):
+            values = [r["mean_m"] for r in scored if r["log"] == log and r["filter"] == name]
+            x = [i - 0.4 + width * (j + 0.5)] * len(values)
+            ax.scatter(x, values, marker=markers.get(name, "x"), color=f"C{j}", s=22,
+                       label=name if i == 0 else None, alpha=0.8)
+    ax.set_yscale("log")
+    ax.set_xticks(range(len(logs)))
+    ax.set_xticklabels(logs, rotation=30, ha="right")
+    ax.set_ylabel("relations error, mean [m] (one marker per seed)")
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title("grid SLAM with the defaults, 30 particles")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    parser.add_argument("files", nargs="+", type=Path, help="grid_robustness JSON files, earliest first")
+    parser.add_argument("--name", default="", help="suffix of the merged JSON and plot")
+    args = parser.parse_args(argv)
+    rows, replaced = merge(args.files)
+    print_table(rows, ["log", "seed", "filter", "mean_m", "median_m", "max_m", "over_0.5m", "n_relations",
+                       "wall_s", "source"])
+    print()
+    summary = summarize(rows)
+    print_table(summary, ["log", "filter", "seeds", "worst_mean_m", "mean_of_means_m", "worst_max_m",
+                          "over_0.5m_total", "wall_s_mean"])
+    suffix = f"_{args.name}" if args.name else ""
+    json_path = RESULTS / f"grid_robustness_merged{suffix}.json"
+    png_path = RESULTS / f"grid_robustness_merged{suffix}.png"
+    payload = {"machine": machine_info(), "sources": [str(p) for p in args.files], "replaced": replaced,
+               "runs": rows, "summary": summary}
+    json_path.write_text(json.dumps(payload, indent=1, default=float) + "\n")
+    plot(rows, png_path)
+    print(f"wrote {json_path} and {png_path} ({len(replaced)} runs replaced by later files)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
