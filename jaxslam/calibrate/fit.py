@@ -1,17 +1,43 @@
-r"""Fit the landmark filters' noise levels by gradient ascent on the log marginal
-likelihood estimate (:mod:`jaxslam.calibrate.landmark`).
+r"""Fit noise levels by gradient ascent on a particle filter's log marginal likelihood
+estimate, and choose the iterate to keep on held-out scans.
 
-Each Adam step (optax) runs ``len(seeds)`` filters on the window with fresh keys
-(``vmap`` over keys), averages their gradients of ``log Z / T`` with respect to the
-log noise levels, and records the mean objective and the variance of the per-filter
-gradients. The value/gradient program is compiled once per static configuration.
+**Ascent** (:func:`ascend`, shared by every filter family). Each Adam step (optax)
+runs ``filters`` filters on the fitting scans with fresh keys (``vmap`` over keys),
+averages their gradients of ``log Z / T`` with respect to the log noise levels, and
+records the mean objective and the variance of the per-filter gradients. With
+``decay < 1`` the step size follows a cosine from ``learning_rate`` down to
+``decay * learning_rate``, so that the last iterates settle instead of wandering
+with the gradient noise where the objective is flat.
 
-The objective is the filter's estimate of :math:`\log Z` under the detection/clutter
-mixture likelihood by default (``likelihood="mixture"``, ``Config.likelihood``; see
-:mod:`jaxslam.feature.particle`), not under the paper's gated weights: with the gated
-weights the innovations that leave the (Mahalanobis) gate stop counting, so the
-gradient pulls the measurement noise down (simulator, all four levels fitted from 3x
-and 1/3x off, 20 particles: range and bearing end at 0.83-0.95 of the truth under
+**Selection on validation scans** (:func:`select_by_validation`, default on). The
+objective has cliffs the gradient cannot see: noise levels small enough for a filter
+with hard data association to lose track make ``log Z`` collapse (a discrete change
+of association), and a finite-particle estimate rewards small noise that a filter
+with more particles, or later scans, do not. So the window is split: the first
+``1 - validation`` of it is fitted, the rest is held out. Every ``validate_every``-th
+iterate (the start and the last included) is scored by the mean held-out
+one-step log-likelihood
+
+.. math:: v_j(\theta) = \frac{1}{|V|} \sum_{t \in V} \log \hat p_j(z_t \mid z_{1:t-1}; \theta)
+
+of ``validation_filters`` filters ``j`` with ``validation_particles`` particles run
+through the whole window (forward only). The same keys serve every candidate
+(common random numbers), so the candidates are compared pairwise. The kept iterate
+is the best candidate by mean score, but only if it beats the start by more than
+``validation_margin`` standard errors of the paired differences
+:math:`v_j(\theta) - v_j(\theta_0)`; otherwise the start is kept. Nothing
+generalises, nothing changes: calibration cannot make the noise worse on held-out
+data by more than the evaluation noise. Without validation (``validation=0``) the
+kept iterate is the one with the largest training objective (noisy: each step's
+value comes from fresh keys).
+
+**Landmark filters** (:func:`calibrate`). The objective is the filter's estimate of
+:math:`\log Z` under the detection/clutter mixture likelihood by default
+(``likelihood="mixture"``, ``Config.likelihood``; see
+:mod:`jaxslam.feature.particle`), not under the paper's gated weights: with the
+gated weights the innovations that leave the (Mahalanobis) gate stop counting, so
+the gradient pulls the measurement noise down (simulator, all four levels fitted from
+3x and 1/3x off, 20 particles: range and bearing end at 0.83-0.95 of the truth under
 the gated weights, 0.96-1.04 under the mixture). The calibrated levels are meant for
 either weight: ``jaxslam run --params`` runs the paper's filter with them.
 """
@@ -20,7 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -33,55 +59,247 @@ from jaxslam.feature.params import Config, Params
 
 
 @dataclasses.dataclass
+class Validation:
+    """The held-out scoring of :func:`select_by_validation`.
+
+    Attributes:
+        fit_scans: scans ``[0, fit_scans)`` were fitted; ``[fit_scans, scans)`` held out.
+        scans: the whole window.
+        filters, particles: filters (common keys for every candidate) and particles each.
+        margin: standard errors of the paired difference a candidate must beat the start by.
+        steps: the candidate iterates (indices into the parameter trajectory; 0 is the start).
+        scores: ``(len(steps), filters)`` mean held-out log-likelihood per scan.
+        selected: the index into ``steps`` of the kept iterate.
+        time_s: time of all validation runs (compilation included) [s].
+    """
+
+    fit_scans: int
+    scans: int
+    filters: int
+    particles: int
+    margin: float
+    steps: list[int]
+    scores: list[list[float]]
+    selected: int
+    time_s: float
+
+    def to_json(self) -> dict[str, Any]:
+        scores = np.asarray(self.scores)
+        return {**dataclasses.asdict(self), "mean_scores": scores.mean(1).tolist(),
+                "selected_step": self.steps[self.selected]}
+
+
+@dataclasses.dataclass
 class CalibrationResult:
-    """Outcome of :func:`calibrate`.
+    """Outcome of :func:`calibrate` (and of the grid calibration).
 
     Attributes:
         names: the calibrated parameters.
-        before, after: their values before and after: ``after`` is the best iterate,
-            the parameters of the step with the largest mean objective (``best_step``;
-            the start itself if no step improved on it), not the last one. The
-            objective has cliffs the gradient cannot see: noise levels small enough
-            for the filters to lose track (a discrete change of association) make
-            ``log Z`` collapse, and Adam can step over that edge (Victoria Park's
-            first half: +14.1 per scan at step 11, -3.1 at step 13, never above 0
-            again).
+        before, after: their values before and after (a list for a vector parameter). ``after`` is the iterate kept
+            (``best_step``): with validation the one chosen on the held-out scans
+            (:func:`select_by_validation`, the start itself when no iterate is
+            significantly better there), without it the one with the largest training
+            objective. Not the last one: the objective has cliffs the gradient cannot
+            see (Victoria Park's first half, 10 particles: +14.1 nats per scan at step
+            11, -3.1 at step 13, never above 0 again, and the step-11 levels lose
+            track on the second half with 100 particles).
         last: the parameters after the last Adam step.
-        best_step: the index (into ``log_likelihood``) of ``after``.
-        log_likelihood: per Adam step, the mean over filters of ``log Z / T`` at the
-            parameters of that step (before its update).
+        best_step: the index (into ``trajectory``) of ``after``.
+        train_best_step: the step with the largest training objective.
+        log_likelihood: per Adam step, the mean over filters of ``log Z / T`` on the
+            fitting scans at the parameters of that step (before its update).
         gradient_variance: per step, the variance over filters of each gradient
             component, ``(steps, len(names))``.
         trajectory: per step, the parameter values, ``(steps + 1, len(names))``.
+        validation: the held-out scoring (None without validation).
         compile_s, wall_s: compilation time and the time of all steps [s].
         config: the static configuration; ``params``: the full parameters after.
+        window, fit_window: the scans used, and those fitted.
+        columns: a name per column of ``trajectory`` (default ``names``; a vector
+            parameter has a column per entry).
     """
 
     names: tuple[str, ...]
-    before: dict[str, float]
-    after: dict[str, float]
-    last: dict[str, float]
+    before: dict[str, Any]
+    after: dict[str, Any]
+    last: dict[str, Any]
     best_step: int
+    train_best_step: int
+    log_likelihood: list[float]
+    gradient_variance: list[list[float]]
+    trajectory: list[list[float]]
+    validation: Validation | None
+    compile_s: float
+    wall_s: float
+    config: Any
+    params: Any
+    window: int
+    fit_window: int
+    filters: int
+    columns: tuple[str, ...] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "names": list(self.names), "columns": list(self.columns or self.names),
+            "params_before": self.before, "params_after": self.after,
+            "params_last": self.last, "best_step": self.best_step, "train_best_step": self.train_best_step,
+            "log_likelihood": self.log_likelihood, "log_likelihood_unit": "log Z / scans (mean over filters)",
+            "gradient_variance": self.gradient_variance, "parameter_trajectory": self.trajectory,
+            "validation": None if self.validation is None else self.validation.to_json(),
+            "compile_s": self.compile_s, "time_s": self.wall_s, "steps": len(self.log_likelihood),
+            "window": self.window, "fit_window": self.fit_window, "filters_per_step": self.filters,
+            "config": dataclasses.asdict(self.config),
+        }
+
+
+@dataclasses.dataclass
+class Ascent:
+    """What :func:`ascend` records (see :class:`CalibrationResult`)."""
+
     log_likelihood: list[float]
     gradient_variance: list[list[float]]
     trajectory: list[list[float]]
     compile_s: float
     wall_s: float
-    config: Config
-    params: Params
-    window: int
-    filters: int
 
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "names": list(self.names), "params_before": self.before, "params_after": self.after,
-            "params_last": self.last, "best_step": self.best_step,
-            "log_likelihood": self.log_likelihood, "log_likelihood_unit": "log Z / scans (mean over filters)",
-            "gradient_variance": self.gradient_variance, "parameter_trajectory": self.trajectory,
-            "compile_s": self.compile_s, "time_s": self.wall_s, "steps": len(self.log_likelihood),
-            "window": self.window, "filters_per_step": self.filters,
-            "config": dataclasses.asdict(self.config),
-        }
+
+def ascend(
+    objective: Any,
+    args: tuple,
+    theta: Any,
+    steps: int,
+    learning_rate: float,
+    filters: int,
+    seed: int,
+    decay: float = 1.0,
+    callback: Any = None,
+) -> Ascent:
+    """Adam ascent of the jitted ``objective(keys (filters,), theta, *args) ->
+    (values (filters,), grads (filters, K))`` over ``theta`` (log noise levels).
+
+    Step ``i`` uses the keys ``split(fold_in(PRNGKey(seed), i), filters)``. Filters
+    whose value or gradient is not finite are left out of that step's mean (an error
+    if none is left). ``callback(step, mean_value, values)`` after each step, with
+    ``values = exp(theta)`` after the update.
+    """
+    if not 0.0 < decay <= 1.0:
+        raise ValueError(f"decay must be in (0, 1], got {decay}")
+    dtype = jnp.asarray(theta).dtype
+    theta = jnp.asarray(theta)
+    schedule = optax.cosine_decay_schedule(learning_rate, max(steps, 1), alpha=decay)
+    optimiser = optax.adam(schedule)
+    opt_state = optimiser.init(theta)
+    base = jax.random.PRNGKey(seed)
+    curve, variances, path = [], [], [np.exp(np.asarray(theta, float)).tolist()]
+    start = time.perf_counter()
+    keys = jax.random.split(jax.random.fold_in(base, 0), filters)
+    compiled = objective.lower(keys, theta, *args).compile()
+    compile_s = time.perf_counter() - start
+    start = time.perf_counter()
+    for i in range(steps):
+        keys = jax.random.split(jax.random.fold_in(base, i), filters)
+        values, grads = compiled(keys, theta, *args)
+        values, grads = np.asarray(values, float), np.asarray(grads, float)
+        ok = np.isfinite(values) & np.all(np.isfinite(grads), axis=1)
+        if not ok.any():
+            raise FloatingPointError(f"step {i}: no filter gave a finite log-likelihood and gradient at {path[-1]}")
+        curve.append(float(values[ok].mean()))
+        variances.append(grads[ok].var(0).tolist())
+        # Adam minimises: ascend the log-likelihood.
+        updates, opt_state = optimiser.update(jnp.asarray(-grads[ok].mean(0), dtype), opt_state, theta)
+        theta = optax.apply_updates(theta, updates)
+        path.append(np.exp(np.asarray(theta, float)).tolist())
+        if callback is not None:
+            callback(i, curve[-1], path[-1])
+    return Ascent(curve, variances, path, compile_s, time.perf_counter() - start)
+
+
+def select_by_validation(scores: Any, margin: float = 2.0) -> int:
+    """The candidate to keep from held-out scores ``(candidates, filters)``, candidate
+    0 being the start: the best mean, if its paired difference to the start exceeds
+    ``margin`` standard errors (and 0); else 0. Filters with a non-finite score for
+    either candidate count as infinitely bad for the candidate that has it."""
+    scores = np.asarray(scores, float)
+    if scores.ndim != 2 or scores.shape[0] < 1 or scores.shape[1] < 1:
+        raise ValueError(f"scores must be (candidates, filters), got shape {scores.shape}")
+    scores = np.where(np.isnan(scores), -np.inf, scores)
+    means = scores.mean(1)
+    best = int(np.argmax(means))
+    if best == 0 or not np.isfinite(means[best]):
+        return 0
+    if not np.isfinite(means[0]):
+        return best
+    diff = scores[best] - scores[0]
+    n = diff.shape[0]
+    se = float(diff.std(ddof=1) / np.sqrt(n)) if n > 1 else 0.0
+    return best if diff.mean() > max(margin * se, 0.0) else 0
+
+
+def validation_steps(steps: int, every: int) -> list[int]:
+    """Candidate iterates: ``0, every, 2 every, ...`` and the last, ``steps``."""
+    if every < 1:
+        raise ValueError(f"validate_every must be >= 1, got {every}")
+    return sorted(set(range(0, steps + 1, every)) | {steps})
+
+
+def validate(
+    score: Callable[[jax.Array, Any], Any],
+    trajectory: Sequence[Sequence[float]],
+    steps: list[int],
+    filters: int,
+    seed: int,
+    margin: float,
+) -> tuple[list[list[float]], int]:
+    """Held-out scores ``score(keys (filters,), theta) -> (filters,)`` of the candidate
+    iterates ``trajectory[steps]`` with one set of keys for all (common random
+    numbers), and the index into ``steps`` that :func:`select_by_validation` keeps."""
+    # Keys apart from the training keys (those are fold_in(PRNGKey(seed), step)).
+    keys = jax.random.split(jax.random.split(jax.random.PRNGKey(seed))[1], filters)
+    scores = [np.asarray(score(keys, jnp.log(jnp.asarray(trajectory[s]))), float).tolist() for s in steps]
+    return scores, select_by_validation(scores, margin)
+
+
+def split_window(window: int, validation: float) -> int:
+    """The scans fitted, ``window - round(validation * window)`` (both parts >= 1 scan)."""
+    if not 0.0 <= validation < 1.0:
+        raise ValueError(f"validation must be a fraction in [0, 1), got {validation}")
+    held = int(round(validation * window))
+    if validation > 0 and (held < 1 or window - held < 1):
+        raise ValueError(f"a window of {window} scans cannot be split {1 - validation:.2f} / {validation:.2f}")
+    return window - held
+
+
+def fit_and_select(
+    objective: Any,
+    args: tuple,
+    theta: Any,
+    steps: int,
+    learning_rate: float,
+    filters: int,
+    seed: int,
+    decay: float = 1.0,
+    callback: Any = None,
+    score: Callable[[jax.Array, Any], Any] | None = None,
+    window: tuple[int, int, int] = (0, 0, 0),
+    validate_every: int = 5,
+    validation_filters: int = 8,
+    validation_margin: float = 2.0,
+) -> tuple[Ascent, int, int, Validation | None]:
+    """:func:`ascend`, then the iterate to keep: ``(ascent, kept step, step with the
+    best training objective, validation record)``. With ``score(keys, theta) ->
+    (filters,)`` held-out scores, the kept step is chosen by :func:`validate` on
+    ``window = (fit_scans, scans, validation particles)``; without, it is the best
+    training step."""
+    ascent = ascend(objective, args, theta, steps, learning_rate, filters, seed, decay, callback)
+    train_best = int(np.argmax(ascent.log_likelihood))
+    if score is None:
+        return ascent, train_best, train_best, None
+    start = time.perf_counter()
+    candidates = validation_steps(steps, validate_every)
+    scores, chosen = validate(score, ascent.trajectory, candidates, validation_filters, seed, validation_margin)
+    record = Validation(*window[:2], validation_filters, window[2], validation_margin, candidates, scores, chosen,
+                        time.perf_counter() - start)
+    return ascent, candidates[chosen], train_best, record
 
 
 _PROGRAMS: dict[Any, Any] = {}
@@ -91,7 +309,7 @@ def value_and_grads(config: Config, names: Sequence[str] = NOISE_NAMES):
     """Jitted ``(keys (S,), log_noise, params, controls, observations, obs_mask,
     initial_pose) -> (values (S,), grads (S, len(names)))`` of ``log Z / T`` per filter."""
     names = tuple(names)
-    if (config, names) not in _PROGRAMS:
+    if ("grad", config, names) not in _PROGRAMS:
 
         def one(log_noise, key, params, controls, observations, obs_mask, initial_pose):
             inc = log_likelihoods(key, with_log_noise(params, log_noise, names), config, controls, observations,
@@ -99,8 +317,24 @@ def value_and_grads(config: Config, names: Sequence[str] = NOISE_NAMES):
             return jnp.mean(inc)
 
         batched = jax.vmap(jax.value_and_grad(one), (None, 0, None, None, None, None, None))
-        _PROGRAMS[(config, names)] = jax.jit(lambda keys, th, *rest: batched(th, keys, *rest))
-    return _PROGRAMS[(config, names)]
+        _PROGRAMS[("grad", config, names)] = jax.jit(lambda keys, th, *rest: batched(th, keys, *rest))
+    return _PROGRAMS[("grad", config, names)]
+
+
+def increments_program(config: Config, names: Sequence[str] = NOISE_NAMES):
+    """Jitted ``(keys (S,), log_noise, params, controls, observations, obs_mask,
+    initial_pose) -> (S, T)`` one-step log-likelihoods (forward only)."""
+    names = tuple(names)
+    if ("increments", config, names) not in _PROGRAMS:
+
+        def one(key, log_noise, params, controls, observations, obs_mask, initial_pose):
+            return log_likelihoods(key, with_log_noise(params, log_noise, names), config, controls, observations,
+                                   obs_mask, initial_pose, checkpoint=False)
+
+        _PROGRAMS[("increments", config, names)] = jax.jit(
+            jax.vmap(one, (0, None, None, None, None, None, None))
+        )
+    return _PROGRAMS[("increments", config, names)]
 
 
 def calibrate(
@@ -118,17 +352,25 @@ def calibrate(
     dtype: Any = jnp.float32,
     callback: Any = None,
     likelihood: str = "mixture",
+    decay: float = 1.0,
+    validation: float = 0.25,
+    validate_every: int = 5,
+    validation_filters: int = 8,
+    validation_particles: int | None = None,
+    validation_margin: float = 2.0,
 ) -> CalibrationResult:
-    r"""Maximise the log marginal likelihood estimate over the log noise levels.
+    r"""Maximise the landmark filter's log marginal likelihood estimate over the log
+    noise levels and keep the iterate that does best on held-out scans (see the module
+    docstring).
 
     Args:
         sequence: landmark sequence (Victoria Park or the simulator).
         algorithm: ``erb-upf`` or ``rb-upf``.
-        particles: particles per filter.
+        particles: particles per filter in the fit.
         filters: filters (fresh seeds) averaged per step.
         steps: Adam steps.
         learning_rate: Adam step size on the log noise levels.
-        window: first ``window`` scans used (default all).
+        window: first ``window`` scans used (default all), fit and validation together.
         seed: base seed of the filters' keys.
         params: starting parameters (full or overrides on ``params_for``).
         names: the noise levels fitted (default speed, steering, range, bearing).
@@ -137,11 +379,19 @@ def calibrate(
         likelihood: the weight whose :math:`\log Z` is maximised (``Config.likelihood``:
             ``"mixture"``, the default, or the paper's ``"gated"``, biased to small noise).
         callback: ``callback(step, mean_log_likelihood, values)`` after each step.
+        decay: final step size as a fraction of ``learning_rate`` (cosine; 1: constant).
+        validation: the fraction of the window held out at its end (0: no validation,
+            keep the iterate with the best training objective).
+        validate_every: score every this many iterates (the start and last always).
+        validation_filters: filters per candidate (the same keys for all candidates).
+        validation_particles: particles of the validation filters (default
+            ``particles``; use the count the calibrated filter will run with).
+        validation_margin: standard errors a candidate must beat the start by.
     """
     if algorithm not in ALGORITHMS:
         raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}")
-    if min(particles, filters, steps) < 1:
-        raise ValueError("particles, filters and steps must be >= 1")
+    if min(particles, filters, steps, validation_filters) < 1:
+        raise ValueError("particles, filters, steps and validation_filters must be >= 1")
     if not isinstance(params, Params):
         params = params_for(sequence, **(params or {}))
     names = tuple(names)
@@ -152,51 +402,39 @@ def calibrate(
     window = total if window is None else min(int(window), total)
     if window < 1:
         raise ValueError("window must be >= 1 scan")
-    cfg = Config(num_particles=particles, proposal=ALGORITHMS[algorithm], **{"likelihood": likelihood, **(config or {})})
-    program = value_and_grads(cfg, names)
+    fit_window = split_window(window, validation)
+    overrides = {"likelihood": likelihood, **(config or {})}
+    cfg = Config(num_particles=particles, proposal=ALGORITHMS[algorithm], **overrides)
     params_arr = jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), params)
-    data = (
-        jnp.asarray(sequence.controls[:window], dtype),
-        jnp.asarray(sequence.observations[:window], dtype),
-        jnp.asarray(sequence.obs_mask[:window], bool),
-        jnp.zeros(3, dtype),
-    )
+
+    def data(scans):
+        return (jnp.asarray(sequence.controls[:scans], dtype), jnp.asarray(sequence.observations[:scans], dtype),
+                jnp.asarray(sequence.obs_mask[:scans], bool), jnp.zeros(3, dtype))
+
+    fit_data = data(fit_window)
+    program = value_and_grads(cfg, names)
     theta = jnp.asarray(log_noise_of(params, names), dtype)
-    optimiser = optax.adam(learning_rate)
-    opt_state = optimiser.init(theta)
-    base = jax.random.PRNGKey(seed)
-    curve, variances, path = [], [], [np.exp(np.asarray(theta, float)).tolist()]
-    start = time.perf_counter()
-    keys = jax.random.split(jax.random.fold_in(base, 0), filters)
-    compiled = program.lower(keys, theta, params_arr, *data).compile()
-    compile_s = time.perf_counter() - start
-    start = time.perf_counter()
-    for i in range(steps):
-        keys = jax.random.split(jax.random.fold_in(base, i), filters)
-        values, grads = compiled(keys, theta, params_arr, *data)
-        values, grads = np.asarray(values, float), np.asarray(grads, float)
-        ok = np.isfinite(values) & np.all(np.isfinite(grads), axis=1)
-        if not ok.any():
-            raise FloatingPointError(f"step {i}: no filter gave a finite log-likelihood and gradient at {path[-1]}")
-        mean_grad = grads[ok].mean(0)
-        curve.append(float(values[ok].mean()))
-        variances.append(grads[ok].var(0).tolist())
-        # Adam minimises: ascend the log-likelihood.
-        updates, opt_state = optimiser.update(jnp.asarray(-mean_grad, dtype), opt_state, theta)
-        theta = optax.apply_updates(theta, updates)
-        path.append(np.exp(np.asarray(theta, float)).tolist())
-        if callback is not None:
-            callback(i, curve[-1], path[-1])
-    wall_s = time.perf_counter() - start
-    best = int(np.argmax(curve))
-    last = dict(zip(names, path[-1]))
+    score, val_particles = None, validation_particles or particles
+    if fit_window < window:
+        increments = increments_program(dataclasses.replace(cfg, num_particles=val_particles), names)
+        val_data = data(window)
+
+        def score(keys, th):
+            return np.asarray(increments(keys, th.astype(dtype), params_arr, *val_data))[:, fit_window:].mean(1)
+
+    ascent, best, train_best, record = fit_and_select(
+        program, (params_arr, *fit_data), theta, steps, learning_rate, filters, seed, decay, callback, score,
+        (fit_window, window, val_particles), validate_every, validation_filters, validation_margin,
+    )
+    path = ascent.trajectory
     after = with_log_noise(params, np.log(np.asarray(path[best], float)), names)
     after = jax.tree_util.tree_map(lambda x: np.asarray(x).tolist(), after)
     return CalibrationResult(
         names=names,
         before={n: float(getattr(params, n)) for n in names},
         after={n: float(getattr(after, n)) for n in names},
-        last={n: float(v) for n, v in last.items()}, best_step=best,
-        log_likelihood=curve, gradient_variance=variances, trajectory=path,
-        compile_s=compile_s, wall_s=wall_s, config=cfg, params=after, window=window, filters=filters,
+        last=dict(zip(names, map(float, path[-1]))), best_step=best, train_best_step=train_best,
+        log_likelihood=ascent.log_likelihood, gradient_variance=ascent.gradient_variance, trajectory=path,
+        validation=record, compile_s=ascent.compile_s, wall_s=ascent.wall_s, config=cfg, params=after,
+        window=window, fit_window=fit_window, filters=filters,
     )
