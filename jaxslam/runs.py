@@ -76,12 +76,16 @@ def param_fields(algorithm: str) -> dict[str, Any]:
 
 def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
     fields = param_fields(algorithm)
-    for name, _ in overrides.items():
+    for name, value in overrides.items():
         default = fields.get(name, KeyError)
         if default is KeyError:
             scalar = sorted(n for n, v in fields.items() if isinstance(v, (int, float)))
             raise RunError(f"--set {name}: {algorithm} has no parameter {name!r}; numeric parameters: {', '.join(scalar)}")
-        if not isinstance(default, (int, float)):
+        if isinstance(value, list):
+            # A vector (from a calibration file): as many numbers as the parameter has.
+            if np.ndim(default) != 1 or np.size(default) != len(value):
+                raise RunError(f"--params {name}: expected {np.size(default)} number(s), got a list of {len(value)}")
+        elif not isinstance(default, (int, float)):
             raise RunError(f"--set {name}: parameter {name!r} is not a single number and cannot be set here")
 
 

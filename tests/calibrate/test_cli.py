@@ -28,27 +28,30 @@ def test_params_file_errors(tmp_path):
     assert load_params_file(good) == {"range_std": 0.5}
 
 
-def test_grid_algorithm_is_refused(tmp_path, capsys):
+def test_gmapping_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
-        main(["calibrate", "--algorithm", "srupf-gm", "--out", str(tmp_path)])
+        main(["calibrate", "--algorithm", "gmapping", "--out", str(tmp_path)])
     assert exc.value.code == 2
-    assert "landmark filters" in capsys.readouterr().err
+    assert "no differentiable proposal" in capsys.readouterr().err
 
 
 @pytest.mark.slow
 def test_calibrate_then_run_with_params(tmp_path):
     out = tmp_path / "cal"
     assert main(["calibrate", "--out", str(out), "--particles", "4", "--filters", "2", "--steps", "3",
-                 "--window", "12", "--learning-rate", "0.1"]) == 0
+                 "--window", "16", "--learning-rate", "0.1", "--validate-every", "1",
+                 "--validation-filters", "2"]) == 0
     payload = json.loads((out / "calibration.json").read_text())
     assert len(payload["log_likelihood"]) == 3
     assert (out / "calibration.png").exists()
     assert payload["params_last"] != payload["params_before"]
     best = payload["parameter_trajectory"][payload["best_step"]]
     assert [payload["params_after"][n] for n in payload["names"]] == pytest.approx(best)
-    assert payload["log_likelihood"][payload["best_step"]] == max(payload["log_likelihood"])
+    assert payload["fit_window"] == 12 and payload["validation"]["steps"] == [0, 1, 2, 3]
+    assert payload["validation"]["selected_step"] == payload["best_step"]
+    assert payload["log_likelihood"][payload["train_best_step"]] == max(payload["log_likelihood"])
     run_out = tmp_path / "run"
-    assert main(["run", "--out", str(run_out), "--particles", "4", "--max-steps", "12", "--no-plots",
+    assert main(["run", "--out", str(run_out), "--particles", "4", "--max-steps", "16", "--no-plots",
                  "--no-progress", "--params", str(out / "calibration.json")]) == 0
     summary = json.loads((run_out / "summary.json").read_text())
     assert summary["overrides"] == payload["params_after"]
