@@ -1,4 +1,4 @@
-"""Noise calibration by differentiating the landmark filter (issue #16).
+"""Noise calibration by differentiating the particle filters (issue #16).
 
 Parts (``--part``, repeatable; default all):
 
@@ -14,12 +14,24 @@ Parts (``--part``, repeatable; default all):
   the second half's log-likelihood estimate (under both weights, the mixture
   likelihood that calibration maximises and the paper's gated weights) and GPS error
   (the paper's filter, gated weights, with either set of noise levels). The
-  calibrated levels are the best iterate (largest objective); the last iterate is
-  evaluated too when it differs. ``--vp-from JSON`` re-evaluates a calibration stored
-  by an earlier run instead of running it again.
+  calibrated levels are the iterate kept on the validation scans; the iterate with
+  the best training objective is evaluated too when it differs (and the last with
+  ``--vp-eval-last``). ``--vp-from JSON`` re-evaluates a calibration stored by an
+  earlier run instead of running it again. ``--vp-val-particles`` (default
+  ``--vp-particles``): particles of the validation filters.
 
-``--likelihood`` picks the objective (``mixture``, the default of
-:func:`jaxslam.calibrate.calibrate`, or the paper's ``gated`` weights).
+* ``grid``: SRUPF-GM (:mod:`jaxslam.calibrate.grid`): calibrate the odometry and
+  matcher noise on the first ``--grid-window`` scans of ``--grid-dataset`` (Intel),
+  then compare the starting and the calibrated levels with ``--grid-eval-particles``
+  particles and ``--grid-seeds``: the predictive scan log-likelihood (the objective)
+  on scans ``[grid-window, grid-heldout-end)`` and the relations error of whole-log
+  runs.
+
+Every calibration keeps the iterate chosen on the held-out end of its window
+(``--validation``, ``--validate-every``, ``--validation-filters``; see
+:mod:`jaxslam.calibrate.fit`). ``--likelihood`` picks the landmark objective
+(``mixture``, the default of :func:`jaxslam.calibrate.calibrate`, or the paper's
+``gated`` weights).
 
 Writes ``benchmarks/results/calibration.json`` and ``calibration_*.png``.
 """
@@ -61,27 +73,42 @@ def progress(label: str):
     return show
 
 
+def _fit_options(args, particles: int) -> dict:
+    """calibrate()'s step-size and validation options from the command line."""
+    return dict(learning_rate=args.learning_rate, decay=args.decay, validation=args.validation,
+                validate_every=args.validate_every, validation_filters=args.validation_filters,
+                validation_particles=particles, likelihood=args.likelihood)
+
+
 def part_sim(args) -> dict:
     from jaxslam.datasets.landmark_sim import simulate
 
-    seq = simulate(seed=args.seed, num_steps=args.sim_window)
-    true = params_for(seq)
-    truth = {n: float(getattr(true, n)) for n in NAMES}
-    runs = []
-    for factor in (3.0, 1.0 / 3.0):
-        start = {n: v * factor for n, v in truth.items()}
-        res = calibrate(seq, "erb-upf", particles=args.sim_particles, filters=args.filters, steps=args.sim_steps,
-                        learning_rate=args.learning_rate, params=start, seed=args.seed,
-                        config=dict(capacity=96, local_size=48), likelihood=args.likelihood,
-                        callback=progress(f"sim x{factor:.3g}"))
-        ratios = {n: res.after[n] / truth[n] for n in NAMES}
-        runs.append({"start_factor": factor, "after": res.after, "ratio_to_true": ratios,
-                     "within_20pct": {n: abs(r - 1) <= 0.2 for n, r in ratios.items()},
-                     "log_likelihood": res.log_likelihood, "parameter_trajectory": res.trajectory,
-                     "gradient_variance": res.gradient_variance, "compile_s": res.compile_s, "time_s": res.wall_s})
-        print(f"start x{factor:.3g}: " + ", ".join(f"{n} {ratios[n]:.3f}" for n in NAMES), flush=True)
-    return {"truth": truth, "likelihood": args.likelihood, "window": args.sim_window, "particles": args.sim_particles, "filters": args.filters,
-            "steps": args.sim_steps, "learning_rate": args.learning_rate, "runs": runs}
+    runs, truths = [], {}
+    for seed in args.sim_seeds:
+        seq = simulate(seed=seed, num_steps=args.sim_window)
+        true = params_for(seq)
+        truth = {n: float(getattr(true, n)) for n in NAMES}
+        truths[seed] = truth
+        for factor in (3.0, 1.0 / 3.0):
+            start = {n: v * factor for n, v in truth.items()}
+            res = calibrate(seq, "erb-upf", particles=args.sim_particles, filters=args.filters,
+                            steps=args.sim_steps, params=start, seed=seed, config=dict(capacity=128, local_size=48),
+                            callback=progress(f"sim seed {seed} x{factor:.3g}"),
+                            **_fit_options(args, args.sim_val_particles or args.sim_particles))
+            ratios = {n: res.after[n] / truth[n] for n in NAMES}
+            runs.append({"seed": seed, "start_factor": factor, "after": res.after, "ratio_to_true": ratios,
+                         "within_20pct": {n: abs(r - 1) <= 0.2 for n, r in ratios.items()},
+                         "best_step": res.best_step, "train_best_step": res.train_best_step,
+                         "validation": None if res.validation is None else res.validation.to_json(),
+                         "log_likelihood": res.log_likelihood, "parameter_trajectory": res.trajectory,
+                         "gradient_variance": res.gradient_variance, "compile_s": res.compile_s,
+                         "time_s": res.wall_s})
+            print(f"seed {seed} start x{factor:.3g} (step {res.best_step}): "
+                  + ", ".join(f"{n} {ratios[n]:.3f}" for n in NAMES), flush=True)
+    return {"truth": truths[args.sim_seeds[0]], "truths": truths, "seeds": list(args.sim_seeds),
+            "likelihood": args.likelihood, "window": args.sim_window, "particles": args.sim_particles,
+            "filters": args.filters, "steps": args.sim_steps, "learning_rate": args.learning_rate,
+            "decay": args.decay, "validation": args.validation, "runs": runs}
 
 
 def part_time(args) -> dict:
@@ -175,22 +202,92 @@ def part_vp(args) -> dict:
                "after": dict(zip(NAMES, path[best])), "last": dict(zip(NAMES, path[-1]))}
     else:
         res = calibrate(seq, "erb-upf", particles=args.vp_cal_particles, filters=args.filters, steps=args.vp_steps,
-                        learning_rate=args.learning_rate, window=min(args.vp_window, half), seed=args.seed,
-                        likelihood=args.likelihood, callback=progress("vp"))
-        cal = {"likelihood": args.likelihood, "window": res.window, "particles": args.vp_cal_particles,
-               "filters": args.filters, "parameter_trajectory": res.trajectory,
-               "steps": args.vp_steps, "before": res.before, "after": res.after, "last": res.last,
-               "best_step": res.best_step, "log_likelihood": res.log_likelihood,
+                        window=min(args.vp_window, half), seed=args.seed, callback=progress("vp"),
+                        **_fit_options(args, args.vp_val_particles or args.vp_particles))
+        train_best = res.trajectory[res.train_best_step]
+        cal = {"likelihood": args.likelihood, "window": res.window, "fit_window": res.fit_window,
+               "particles": args.vp_cal_particles, "filters": args.filters, "parameter_trajectory": res.trajectory,
+               "steps": args.vp_steps, "decay": args.decay, "before": res.before, "after": res.after,
+               "last": res.last, "best_step": res.best_step, "train_best_step": res.train_best_step,
+               "train_best": dict(zip(NAMES, train_best)),
+               "validation": None if res.validation is None else res.validation.to_json(),
+               "log_likelihood": res.log_likelihood,
                "gradient_variance": res.gradient_variance, "compile_s": res.compile_s, "time_s": res.wall_s}
     print("calibrated (best iterate, step %d):" % cal["best_step"], cal["after"], flush=True)
     out = {"calibration": cal, "half_scan": int(half), "particles": args.vp_particles, "seeds": args.vp_seeds}
     candidates = [("paper", params_for(seq)), ("calibrated", params_for(seq, **cal["after"]))]
-    if cal["last"] != cal["after"]:
+    if cal.get("train_best", cal["after"]) != cal["after"]:
+        candidates.append(("calibrated_train_best", params_for(seq, **cal["train_best"])))
+    if cal["last"] != cal["after"] and args.vp_eval_last:
         candidates.append(("calibrated_last", params_for(seq, **cal["last"])))
     for name, params in candidates:
         out[name] = _evaluate(seq, params, args, half)
         print(name, out[name]["heldout_log_likelihood_per_scan"], out[name]["heldout_gps_mean_m"], flush=True)
     return out
+
+
+def part_grid(args) -> dict:
+    """SRUPF-GM on Intel: calibrate on the first --grid-window scans, then compare the
+    starting and the calibrated levels on the scans after the window (predictive scan
+    log-likelihood, the objective) and on the whole log (relations error)."""
+    import dataclasses as dc
+
+    from jaxslam.calibrate import grid as G
+    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import lookup
+    from jaxslam.grid.experiment import run_grid_slam
+    from jaxslam.grid.types import default_params
+    from jaxslam.metrics.relations import load_relations, relations_metric
+
+    log = load_dataset_log(args.grid_dataset)
+    res = G.calibrate_grid(log, particles=args.grid_particles, filters=args.filters, steps=args.grid_steps,
+                           learning_rate=args.learning_rate, window=args.grid_window, seed=args.seed,
+                           decay=args.decay, validation=args.validation, validate_every=args.validate_every,
+                           validation_filters=args.validation_filters,
+                           validation_particles=args.grid_eval_particles,
+                           callback=progress_values("grid"))
+    cal = {**res.to_json(), "config": None, "particles": args.grid_particles}
+    print("calibrated (kept step %d):" % res.best_step, res.after, flush=True)
+    out = {"dataset": args.grid_dataset, "calibration": cal, "particles": args.grid_eval_particles,
+           "seeds": args.grid_seeds, "heldout_scans": [res.window, args.grid_heldout_end]}
+    relations = load_relations(lookup(args.grid_dataset).relations_path())
+    end = min(args.grid_heldout_end, log.num_scans)
+    inputs = jax.tree_util.tree_map(jnp.asarray, G.window_inputs(log, end))
+    cfg = dc.replace(res.config, num_particles=args.grid_eval_particles)
+    _, increments = G.programs(cfg, res.names, 4)
+    keys = jnp.stack([jax.random.PRNGKey(s) for s in args.grid_seeds])
+    for label, values in (("default", res.before), ("calibrated", res.after)):
+        if label == "calibrated" and res.after == res.before:
+            out[label] = {**out["default"], "same_as_default": True}
+            continue
+        prm = default_params(log.angles, log.laser_offset, **values)
+        th = jnp.asarray(G.log_noise_of(prm, res.names), jnp.float32)
+        inc = np.asarray(increments(keys, th, prm, inputs))[:, res.window - 1:]
+        rows = []
+        for i, seed in enumerate(args.grid_seeds):
+            run = run_grid_slam(log, "srupf-gm", particles=args.grid_eval_particles, seed=seed, params=values,
+                                progress=False)
+            metric = relations_metric(relations, run.scan_times, run.trajectory)
+            rows.append({"seed": seed, "heldout_log_likelihood_per_scan": float(np.mean(inc[i])),
+                         "relations_trans_mean_m": metric["trans_err_mean_m"],
+                         "relations_rot_mean_deg": metric["rot_err_mean_deg"], "wall_s": run.wall_s})
+            print(label, rows[-1], flush=True)
+        out[label] = {"params": values, "per_seed": rows, **{
+            k: float(np.mean([r[k] for r in rows]))
+            for k in ("heldout_log_likelihood_per_scan", "relations_trans_mean_m", "relations_rot_mean_deg")}}
+    return out
+
+
+def progress_values(label: str):
+    """Adam-step progress line for a calibration whose levels may be vectors."""
+    start = time.perf_counter()
+
+    def show(step, log_likelihood, values):
+        levels = ", ".join(f"{v:.4g}" for v in values)
+        print(f"  {label} step {step + 1}: objective {log_likelihood:.5f}; levels {levels} "
+              f"({time.perf_counter() - start:.0f} s)", flush=True)
+
+    return show
 
 
 def plot(payload: dict, name: str) -> None:
@@ -203,54 +300,67 @@ def plot(payload: dict, name: str) -> None:
 
     if "sim" in payload:
         sim = payload["sim"]
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        for run in sim["runs"]:
-            axes[0].plot(run["log_likelihood"], label=f"start x{run['start_factor']:.3g}")
-            path = np.asarray(run["parameter_trajectory"])
-            for i, n in enumerate(NAMES):
-                axes[1].plot(path[:, i] / sim["truth"][n], color=f"C{i}",
-                             ls="-" if run["start_factor"] > 1 else "--", label=n if run["start_factor"] > 1 else None)
-        axes[0].set_xlabel("Adam step")
-        axes[0].set_ylabel("log Z-hat / scan")
-        axes[0].legend()
-        axes[1].axhspan(0.8, 1.2, color="0.9")
-        axes[1].set_yscale("log")
-        axes[1].set_xlabel("Adam step")
-        axes[1].set_ylabel("value / true value")
-        axes[1].legend(fontsize=8)
-        axes[1].set_title("simulator recovery (solid: from 3x, dashed: from 1/3x)")
+        seeds = sim.get("seeds", [sim.get("seed", 0)])
+        fig, axes = plt.subplots(len(seeds), 2, figsize=(11, 3.6 * len(seeds)), squeeze=False)
+        for row, seed in zip(axes, seeds):
+            truth = sim.get("truths", {}).get(str(seed)) or sim.get("truths", {}).get(seed) or sim["truth"]
+            for run in (r for r in sim["runs"] if r.get("seed", seeds[0]) == seed):
+                up = run["start_factor"] > 1
+                row[0].plot(run["log_likelihood"], label=f"start x{run['start_factor']:.3g}")
+                path = np.asarray(run["parameter_trajectory"])
+                for i, n in enumerate(NAMES):
+                    row[1].plot(path[:, i] / truth[n], color=f"C{i}", ls="-" if up else "--", label=n if up else None)
+                if "best_step" in run:
+                    row[1].axvline(run["best_step"], color="0.5", lw=0.8, ls="-" if up else "--")
+            row[0].set_xlabel("Adam step")
+            row[0].set_ylabel("log Z-hat / scan (fitted scans)")
+            row[0].set_ylim(bottom=max(row[0].get_ylim()[0], -10))
+            row[0].legend(fontsize=8)
+            row[0].set_title(f"simulator seed {seed}, {sim['window']} scans")
+            row[1].axhspan(0.8, 1.2, color="0.9")
+            row[1].set_yscale("log")
+            row[1].set_xlabel("Adam step")
+            row[1].set_ylabel("value / true value")
+            row[1].legend(fontsize=8)
+            row[1].set_title("solid: from 3x, dashed: from 1/3x; vertical: kept iterate", fontsize=9)
         fig.tight_layout()
         save(fig, RESULTS / f"{name}_sim.png")
     if "vp" in payload:
+        from jaxslam.calibrate.cli import plot_curve
+
         cal = payload["vp"]["calibration"]
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        axes[0].plot(cal["log_likelihood"])
-        axes[0].set_xlabel("Adam step")
-        axes[0].set_ylabel(f"log Z-hat / scan ({cal.get('likelihood', 'gated')} likelihood)")
-        axes[0].set_title(f"Victoria Park, first {cal['window']} scans")
-        if "best_step" in cal:
-            axes[0].axvline(cal["best_step"], color="0.6", lw=0.8, label=f"best iterate (step {cal['best_step']})")
-            axes[0].legend(fontsize=8)
-        if "parameter_trajectory" in cal:
-            path = np.asarray(cal["parameter_trajectory"])
-            for i, n in enumerate(NAMES):
-                axes[1].plot(path[:, i] / cal["before"][n], label=n)
-            axes[1].set_yscale("log")
-            axes[1].set_xlabel("Adam step")
-            axes[1].set_ylabel("value / the paper's value")
-            axes[1].legend(fontsize=8)
-        fig.tight_layout()
-        save(fig, RESULTS / (f"{name}_vp.png" if "sim" in payload else f"{name}.png"))
+        curve = {"algorithm": "erb-upf", "dataset": "victoria-park", "names": list(NAMES),
+                 "params_before": cal["before"], **{k: cal[k] for k in ("log_likelihood", "parameter_trajectory")},
+                 **{k: cal.get(k) for k in ("best_step", "train_best_step", "validation")}}
+        fit = cal.get("fit_window", cal["window"])
+        plot_curve(curve, RESULTS / (f"{name}_vp.png" if "sim" in payload else f"{name}.png"),
+                   title=f"Victoria Park: fitted on scans 0-{fit}, {cal.get('likelihood', 'gated')} likelihood")
+
+
+def plot_grid(payload: dict, name: str) -> None:
+    from jaxslam.calibrate.cli import plot_curve
+
+    grid = payload["grid"]
+    curve = {**grid["calibration"], "algorithm": "srupf-gm", "dataset": grid["dataset"]}
+    cal = grid["calibration"]
+    plot_curve(curve, RESULTS / f"{name}_grid.png",
+               title=f"SRUPF-GM, {grid['dataset']}: fitted on scans 0-{cal['fit_window']}, {cal['particles']} p")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", action="append", choices=["sim", "time", "vp"], default=None)
+    ap.add_argument("--part", action="append", choices=["sim", "time", "vp", "grid"], default=None)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--filters", type=int, default=4)
     ap.add_argument("--learning-rate", type=float, default=0.1)
+    ap.add_argument("--decay", type=float, default=1.0, help="final step size / learning rate (cosine)")
+    ap.add_argument("--validation", type=float, default=0.25, help="held-out fraction of the window (0: none)")
+    ap.add_argument("--validate-every", type=int, default=5)
+    ap.add_argument("--validation-filters", type=int, default=8)
+    ap.add_argument("--sim-seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--sim-window", type=int, default=60)
     ap.add_argument("--sim-particles", type=int, default=20)
+    ap.add_argument("--sim-val-particles", type=int, default=None, help="default: --sim-particles")
     ap.add_argument("--sim-steps", type=int, default=60)
     ap.add_argument("--time-scans", type=int, default=1000)
     ap.add_argument("--time-particles", type=int, default=100)
@@ -259,22 +369,34 @@ def main() -> None:
     ap.add_argument("--vp-cal-particles", type=int, default=20)
     ap.add_argument("--vp-steps", type=int, default=50)
     ap.add_argument("--vp-particles", type=int, default=100)
+    ap.add_argument("--vp-val-particles", type=int, default=None, help="default: --vp-particles")
+    ap.add_argument("--vp-eval-last", action="store_true", help="also evaluate the last iterate")
     ap.add_argument("--vp-seeds", type=int, default=5)
     ap.add_argument("--likelihood", choices=["mixture", "gated"], default="mixture")
+    ap.add_argument("--grid-dataset", default="intel")
+    ap.add_argument("--grid-window", type=int, default=600, help="scans calibrated on (fit and validation)")
+    ap.add_argument("--grid-particles", type=int, default=8)
+    ap.add_argument("--grid-steps", type=int, default=20)
+    ap.add_argument("--grid-eval-particles", type=int, default=30)
+    ap.add_argument("--grid-seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--grid-heldout-end", type=int, default=3000,
+                    help="held-out predictive likelihood on scans [grid-window, this)")
     ap.add_argument("--vp-from", default=None, metavar="JSON",
                     help="vp part: evaluate the calibration stored in JSON instead of running it again")
     ap.add_argument("--name", default="calibration")
     args = ap.parse_args()
-    parts = args.part or ["sim", "time", "vp"]
+    parts = args.part or ["sim", "time", "vp", "grid"]
     payload = {"machine": machine_info(), "args": vars(args)}
     for part in parts:
-        payload[part] = {"sim": part_sim, "time": part_time, "vp": part_vp}[part](args)
+        payload[part] = {"sim": part_sim, "time": part_time, "vp": part_vp, "grid": part_grid}[part](args)
         write_json(args.name, payload)
     if "sim" in payload:
-        rows = [{"start": f"x{r['start_factor']:.3g}", **{n: round(r["ratio_to_true"][n], 3) for n in NAMES}}
-                for r in payload["sim"]["runs"]]
-        print_table(rows, ["start"] + list(NAMES))
+        rows = [{"seed": r.get("seed", 0), "start": f"x{r['start_factor']:.3g}", "kept step": r.get("best_step"),
+                 **{n: round(r["ratio_to_true"][n], 3) for n in NAMES}} for r in payload["sim"]["runs"]]
+        print_table(rows, ["seed", "start", "kept step"] + list(NAMES))
     plot(payload, args.name)
+    if "grid" in payload:
+        plot_grid(payload, args.name)
 
 
 if __name__ == "__main__":
