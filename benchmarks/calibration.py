@@ -220,6 +220,8 @@ def part_vp(args) -> dict:
         candidates.append(("calibrated_train_best", params_for(seq, **cal["train_best"])))
     if cal["last"] != cal["after"] and args.vp_eval_last:
         candidates.append(("calibrated_last", params_for(seq, **cal["last"])))
+    for step in args.vp_eval_steps:
+        candidates.append((f"step_{step}", params_for(seq, **dict(zip(NAMES, cal["parameter_trajectory"][step])))))
     for name, params in candidates:
         out[name] = _evaluate(seq, params, args, half)
         print(name, out[name]["heldout_log_likelihood_per_scan"], out[name]["heldout_gps_mean_m"], flush=True)
@@ -371,6 +373,7 @@ def main() -> None:
     ap.add_argument("--vp-particles", type=int, default=100)
     ap.add_argument("--vp-val-particles", type=int, default=None, help="default: --vp-particles")
     ap.add_argument("--vp-eval-last", action="store_true", help="also evaluate the last iterate")
+    ap.add_argument("--vp-eval-steps", type=int, nargs="*", default=[], help="also evaluate these iterates")
     ap.add_argument("--vp-seeds", type=int, default=5)
     ap.add_argument("--likelihood", choices=["mixture", "gated"], default="mixture")
     ap.add_argument("--grid-dataset", default="intel")
