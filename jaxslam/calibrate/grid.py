@@ -40,7 +40,10 @@ scan under SRUPF-GM's own prediction and tempered weight,
 
 (:math:`\bar w` the filter's normalised weights before the step, :math:`g` =
 ``weight_gain``, :math:`K` = ``samples``; the samples are drawn apart from the
-filter's own keys), an importance-sampling estimate of
+filter's own keys; :math:`\mu_m, S_m` the prediction from the particle's keyframe
+pose and factor with the motion known before scan :math:`t`: the motion tracked up to
+scan :math:`t-1` composed with scan :math:`t`'s odometry), an importance-sampling
+estimate of
 :math:`\int p(z_t \mid x)^g \mathcal N(x; \mu_m, P_m)\,dx`: too small a prediction
 misses the scan's likelihood peak, too large a one spreads over poses that do not
 fit. Its gradient flows through the samples :math:`\mu_m + S_m \epsilon` into the
@@ -52,9 +55,15 @@ weights and resampling are held fixed: the forward pass is the filter's own
 particle system, not the derivative of how the particles would move (each Adam step
 runs the filter again at the new levels).
 
-With per-scan tracking (the default) the keyframe's control is the laser-tracked
-motion, so :math:`Q` calibrated this way is the noise of that motion, not of the raw
-wheel odometry; use the levels with the same configuration.
+With per-scan tracking (the default) the filter's keyframe control is the tracked
+motion, which has already matched the keyframe's own scan against the best particle's
+map; a likelihood of that scan under it is not predictive (the prediction already
+sits at the scan's best match, so it rewards :math:`Q \to 0`). So the prediction in
+the objective stops one scan short: the tracked motion up to scan :math:`t-1` and the
+odometry of scan :math:`t` (without tracking this is the filter's own control). The
+calibrated :math:`Q` is then the spread of the motion the filter predicts with,
+tracking error plus one scan of odometry, not the raw wheel odometry's error over a
+keyframe; use the levels with the same configuration.
 """
 
 from __future__ import annotations
@@ -162,13 +171,19 @@ def differentiable_scan_step(
     fixed = jax.lax.stop_gradient(carry.state)
     fixed_params = jax.lax.stop_gradient(params)
     control = as_odometry(control)
-    # The keyframe's control, as per_scan computes it (a deterministic function of the
-    # same inputs).
-    motion, _, _ = track(fixed, control.increment, observation, fixed_params, config)
     state, info = srupf.scan_step(key, fixed, control, observation, fixed_params, config)
-    total, prediction = predictive_log_likelihood(
-        jax.random.fold_in(key, 1), fixed, carry.pose_sqrt_covs, motion, observation, params, config, samples
+    # The prediction before the scan is seen: the motion tracked up to the previous scan
+    # and this scan's odometry. (With tracking the filter's own keyframe control has
+    # also matched this scan, so a likelihood of the scan under it would not be
+    # predictive, and would pull Q to 0.)
+    predicted = se2.compose(fixed.motion, control.increment.astype(fixed.motion.dtype))
+    total, _ = predictive_log_likelihood(
+        jax.random.fold_in(key, 1), fixed, carry.pose_sqrt_covs, predicted, observation, params, config, samples
     )
+    # The factor update of the filter itself, from its keyframe control (as per_scan
+    # computes it: a deterministic function of the same inputs) and corrected poses.
+    motion, _, _ = track(fixed, control.increment, observation, fixed_params, config)
+    prediction = jax.vmap(srupf.predict, (0, 0, None, None))(fixed.poses, carry.pose_sqrt_covs, motion, params)
     noise = jnp.diag(params.match_noise.astype(prediction.mean.dtype))
     update = jax.vmap(srupf.sqrt_measurement_update, (0, 0, None))(
         prediction, jax.lax.stop_gradient(info.poses), noise
