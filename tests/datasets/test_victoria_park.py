@@ -85,6 +85,21 @@ def test_ascii_dead_reckoning_is_the_recalibrated_mat_data_in_the_same_time_base
 
 
 @needs_data
+def test_acfr_steering_option_applies_the_ascii_recalibration_to_the_whole_mat_log(sequence):
+    prefix = vp.load_sequence(max_steps=600)
+    acfr = vp.load_sequence(max_steps=600, steering="acfr")
+    scale, offset = acfr.meta["steering_fit"]
+    assert scale == pytest.approx(1.05919, abs=2e-5) and offset == pytest.approx(0.00261, abs=2e-5)
+    real = prefix.controls[..., 2] > 0
+    np.testing.assert_allclose(acfr.controls[..., 1][real], scale * prefix.controls[..., 1][real] + offset, atol=1e-12)
+    np.testing.assert_array_equal(acfr.controls[..., [0, 2]], prefix.controls[..., [0, 2]])
+    np.testing.assert_array_equal(acfr.observations, prefix.observations)
+    assert sequence.meta["steering"] == "mat" and sequence.meta["steering_fit"] is None
+    with pytest.raises(ValueError, match="steering"):
+        vp.load_sequence(max_steps=10, steering="ascii")
+
+
+@needs_data
 def test_gps_matches_readme_and_ascii_fixes_share_its_times():
     gps = vp.load_gps()
     assert gps.xy.shape == (vp.EXPECTED["n_gps"], 2)
