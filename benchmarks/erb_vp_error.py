@@ -47,8 +47,7 @@ from jaxslam.metrics.stats import mean_ci  # noqa: E402
 
 EPISODES = ((1000.0, 1130.0), (1230.0, 1380.0))
 """The two stretches of the drive where the seeds' errors peak (100 s bins of the
-default run): the car maps new ground with 2-5 trees in range and closes the loop at
-their end."""
+default run): the car maps new ground and closes a loop at their end."""
 
 
 def dead_reckoning(seq) -> np.ndarray:
