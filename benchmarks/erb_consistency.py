@@ -11,6 +11,12 @@ world and noise, ``landmark_sim.simulate(seed)``, and its own filter randomness)
   landmarks (covariance ``1e-8`` m^2) and no new landmarks: localisation only. If the
   proposal and the weights are right, this NEES is chi-square(3) for many particles;
   the difference to SLAM is what the shared, degenerate map history costs.
+* **UKF reference** (``--modes ukf-known-map``): an independent NumPy unscented
+  Kalman filter (filterpy's sigma points, the simulator's own car model
+  ``landmark_sim._move``) with the true map and the true associations, one Gaussian, no
+  particles (:func:`ukf_known_map_nees`). Its NEES is about 3 when the simulator's noise
+  is the noise the filters assume and the NEES is computed right (heading wrapped), so
+  what the particle filters add above it is theirs.
 * **genealogy** (SLAM): distinct ancestors at each resampling, how many of the
   initial particles still have descendants after 50 steps, and how often the
   highest-weight particle does not descend from the previous one.
@@ -42,6 +48,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from jaxslam.datasets import landmark_sim  # noqa: E402
+from jaxslam.datasets.geometry import wrap_angle  # noqa: E402
 from jaxslam.driver import scan_steps  # noqa: E402
 from jaxslam.feature import filter as feature_filter  # noqa: E402
 from jaxslam.feature.experiment import ALGORITHMS, params_for  # noqa: E402
@@ -73,6 +80,65 @@ def _ensemble(keys, controls, observations, obs_mask, true_landmarks, params, co
         return infos, infos.ancestors
 
     return jax.vmap(one)(keys, controls, observations, obs_mask, true_landmarks)
+
+
+def ukf_known_map_nees(seq, ut=(1.0, 2.0, 1.0)) -> np.ndarray:
+    """Pose NEES ``(T,)`` of an unscented Kalman filter that knows the map and the data
+    associations of a simulated sequence (``landmark_sim.simulate``).
+
+    Prediction: for each control row, the unscented transform over ``[pose; speed noise;
+    steering noise]`` with covariance ``blockdiag(P, Q)`` through the simulator's car
+    model; update: all observations of the step at once, unscented over the pose, with
+    additive ``R``. Noise levels, geometry and sensor offset from ``seq.meta``; filterpy's
+    scaled sigma points with ``ut = (alpha, beta, kappa)``. Independent of jaxslam's
+    filters: it shares only the simulator and :func:`jaxslam.metrics.nees.pose_nees`.
+    """
+    from filterpy.kalman import MerweScaledSigmaPoints
+
+    meta = seq.meta
+    geometry = tuple(meta["geometry"])
+    offset = np.asarray(meta["sensor_offset"], np.float64)
+    q = np.diag([meta["speed_std"] ** 2, meta["steering_std"] ** 2])
+    r = np.diag([meta["range_std"] ** 2, meta["bearing_std"] ** 2])
+    predict_points = MerweScaledSigmaPoints(5, *ut)
+    update_points = MerweScaledSigmaPoints(3, *ut)
+    mean, cov = np.zeros(3), np.eye(3) * 1e-10
+    estimates, covs = [], []
+    for t in range(seq.controls.shape[0]):
+        for speed, steering, dt in seq.controls[t]:
+            if dt <= 0:
+                continue
+            points = predict_points.sigma_points(np.r_[mean, 0.0, 0.0], np.block([[cov, np.zeros((3, 2))],
+                                                                                   [np.zeros((2, 3)), q]]))
+            moved = landmark_sim._move(points[:, :3].T, speed + points[:, 3], steering + points[:, 4], dt, geometry).T
+            moved[:, 2] = moved[0, 2] + wrap_angle(moved[:, 2] - moved[0, 2])
+            mean = predict_points.Wm @ moved
+            dev = moved - mean
+            cov = (predict_points.Wc[:, None] * dev).T @ dev
+        seen = seq.obs_mask[t]
+        if seen.any():
+            landmarks = seq.landmarks[seq.associations[t][seen]]
+            points = update_points.sigma_points(mean, cov)
+            c, s = np.cos(points[:, 2]), np.sin(points[:, 2])
+            sensor = points[:, :2] + np.stack([c * offset[0] - s * offset[1], s * offset[0] + c * offset[1]], -1)
+            d = landmarks[None] - sensor[:, None]  # (sigma, k, 2)
+            bearing = np.arctan2(d[..., 1], d[..., 0]) - points[:, 2:3]
+            bearing = bearing[0] + wrap_angle(bearing - bearing[0])
+            predicted = np.stack([np.hypot(d[..., 0], d[..., 1]), bearing], -1).reshape(len(points), -1)
+            z_mean = update_points.Wm @ predicted
+            dz = predicted - z_mean
+            innovation_cov = (update_points.Wc[:, None] * dz).T @ dz + np.kron(np.eye(int(seen.sum())), r)
+            cross = (update_points.Wc[:, None] * (points - mean)).T @ dz
+            gain = cross @ np.linalg.inv(innovation_cov)
+            innovation = seq.observations[t][seen].reshape(-1) - z_mean
+            innovation[1::2] = wrap_angle(innovation[1::2])
+            mean = mean + gain @ innovation
+            cov = cov - gain @ innovation_cov @ gain.T
+            cov = 0.5 * (cov + cov.T)
+        mean[2] = wrap_angle(mean[2])
+        estimates.append(mean.copy())
+        covs.append(cov.copy())
+    return pose_nees(np.array(estimates), np.array(covs), seq.true_poses)
 
 
 def genealogy(ancestors: np.ndarray, best: np.ndarray, lag: int = 50) -> dict[str, float]:
@@ -124,7 +190,21 @@ def main() -> None:
     lo_single, hi_single = nees_band(3)
 
     rows, curves = [], {}
-    for mode in args.modes:
+    if "ukf-known-map" in args.modes:
+        nees = np.stack([ukf_known_map_nees(q) for q in sequences])
+        per_seed = nees.mean(axis=1)
+        stats = mean_ci(per_seed)
+        third = args.steps // 3
+        rows.append(dict(
+            mode="ukf-known-map", algorithm="ukf", particles=0, seeds=len(seeds), nees_mean=stats["mean"],
+            nees_std=stats["std"], nees_ci_low=stats["ci_low"], nees_ci_high=stats["ci_high"],
+            nees_median_seed=float(np.median(per_seed)), nees_first_third=float(nees[:, :third].mean()),
+            nees_last_third=float(nees[:, -third:].mean()),
+            fraction_inside_band=float(((nees >= lo_single) & (nees <= hi_single)).mean()), per_seed_nees=per_seed.tolist(),
+        ))
+        curves["ukf-known-map/ukf/0"] = nees.mean(axis=0)
+        print(f"ukf-known-map: NEES {stats['mean']:.2f} [{stats['ci_low']:.2f}, {stats['ci_high']:.2f}]", flush=True)
+    for mode in (m for m in args.modes if m != "ukf-known-map"):
         for n in args.particles:
             for algorithm in args.algorithms:
                 config = Config(num_particles=n, proposal=ALGORITHMS[algorithm])
@@ -195,6 +275,8 @@ def main() -> None:
             err = np.array([[r["nees_mean"] - r["nees_ci_low"] for r in mine], [r["nees_ci_high"] - r["nees_mean"] for r in mine]])
             axes[0].errorbar(n, mean, yerr=err, fmt=marker, color=colors.get(algorithm), capsize=3,
                              label=f"{algorithm} {mode}")
+    for row in (r for r in rows if r["mode"] == "ukf-known-map"):
+        axes[0].axhline(row["nees_mean"], color="tab:blue", ls=":", label="UKF, true map and associations")
     axes[0].axhspan(lo_single, hi_single, color="0.9", label="95% band, one NEES")
     axes[0].axhline(3.0, color="k", lw=0.8)
     axes[0].set_xscale("log")
@@ -206,6 +288,8 @@ def main() -> None:
         mode, algorithm, n = key.split("/")
         if algorithm == "erb-upf":
             axes[1].semilogy(curve, lw=0.8, ls="-" if mode == "slam" else "--", label=f"{mode} N={n}")
+        elif algorithm == "ukf":
+            axes[1].semilogy(curve, lw=0.8, ls=":", color="tab:blue", label="UKF, true map")
     axes[1].axhline(3.0, color="k", lw=0.8)
     axes[1].set_xlabel("step")
     axes[1].set_ylabel("ERB NEES, mean over seeds")

@@ -15,6 +15,14 @@ entropy, lineage changes of the best particle). Wall time is that of the whole e
 
 Writes ``benchmarks/results/<name>.json`` and ``<name>.png``. With ``--merge`` the
 points already in ``<name>.json`` that this run does not redo are kept.
+
+Variants of the defaults, for the same statistics: ``--params '{"resample_threshold":
+0.2}'`` (overrides of :class:`~jaxslam.feature.params.Params`), ``--config '{...}'``
+(of :class:`~jaxslam.feature.params.Config`), ``--max-range 50`` (the sequence's
+range cut and the filter's), ``--steering acfr``
+(:func:`jaxslam.datasets.victoria_park.load_sequence`); ``--label`` names the variant
+in the rows (a point is one algorithm, particle count and label, so variants merge
+into one file without replacing each other).
 """
 
 from __future__ import annotations
@@ -38,10 +46,10 @@ from jaxslam.metrics.particle_diagnostics import landmark_run_summary  # noqa: E
 from jaxslam.metrics.stats import mean_ci  # noqa: E402
 
 
-def summarise(seq, res) -> dict:
+def summarise(seq, res, label: str = "") -> dict:
     """Seed statistics of one ensemble."""
     errs = [gps_error(seq.times, res.trajectory[i], seq.gps_times, seq.gps_xy) for i in range(len(res.seeds))]
-    row = dict(algorithm=res.algorithm, particles=res.particles, seeds=res.seeds, steps=res.steps)
+    row = dict(algorithm=res.algorithm, particles=res.particles, seeds=res.seeds, steps=res.steps, label=label)
     for name in ("gps_mean_m", "gps_rms_m", "gps_max_m"):
         values = [e[name] for e in errs]
         stats = mean_ci(values)
@@ -72,10 +80,15 @@ def plot(rows, path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    for algorithm, color, shift in (("rb-upf", "tab:red", 0.94), ("erb-upf", "tab:green", 1.06)):
-        mine = sorted((r for r in rows if r["algorithm"] == algorithm), key=lambda r: r["particles"])
-        if not mine:
-            continue
+    series = sorted({(r.get("label", ""), r["algorithm"]) for r in rows})
+    base_colors = {"rb-upf": "tab:red", "erb-upf": "tab:green"}
+    others = iter(plt.rcParams["axes.prop_cycle"].by_key()["color"])
+    for k, (label, algorithm) in enumerate(series):
+        color = base_colors.get(algorithm) if not label else next(others)
+        shift = 1.0 + 0.06 * (k - (len(series) - 1) / 2)
+        mine = sorted((r for r in rows if r["algorithm"] == algorithm and r.get("label", "") == label),
+                      key=lambda r: r["particles"])
+        algorithm = f"{algorithm} {label}".strip()
         n = np.array([r["particles"] for r in mine], float) * shift
         mean = np.array([r["gps_mean_m"] for r in mine])
         ci = np.array([r["gps_mean_m_ci"] for r in mine])
@@ -111,29 +124,38 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--name", default="erb_particles")
     parser.add_argument("--merge", action="store_true", help="keep the other points of an existing result file")
+    parser.add_argument("--params", default="{}", help="JSON overrides of the filter Params")
+    parser.add_argument("--config", default="{}", help="JSON overrides of the filter Config")
+    parser.add_argument("--max-range", type=float, default=30.0, help="range cut of the sequence and the filter [m]")
+    parser.add_argument("--steering", default="mat", choices=["mat", "acfr"], help="steering calibration")
+    parser.add_argument("--label", default="", help="name of the variant (part of a point's key)")
     args = parser.parse_args()
 
-    seq = victoria_park.load_sequence("detections", max_range=30.0, max_steps=args.steps)
+    seq = victoria_park.load_sequence("detections", max_range=args.max_range, max_steps=args.steps,
+                                      steering=args.steering)
+    params = {"max_range": args.max_range, **json.loads(args.params)}
+    config = json.loads(args.config)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     rows = []
     old = RESULTS / f"{args.name}.json"
     if args.merge and old.exists():
         rows = json.loads(old.read_text()).get("runs", [])
-    redo = {(a, n) for a in args.algorithms for n in args.particles}
-    rows = [r for r in rows if (r["algorithm"], r["particles"]) not in redo]
+    redo = {(a, n, args.label) for a in args.algorithms for n in args.particles}
+    rows = [r for r in rows if (r["algorithm"], r["particles"], r.get("label", "")) not in redo]
     for n in args.particles:
         for algorithm in args.algorithms:
-            res = run_landmark_ensemble(seq, algorithm, particles=n, seeds=seeds)
-            rows.append(summarise(seq, res))
+            res = run_landmark_ensemble(seq, algorithm, particles=n, seeds=seeds, params=params, config=config)
+            rows.append(summarise(seq, res, args.label))
+            rows[-1].update(params_overrides=params, config_overrides=config, steering=args.steering)
             rows[-1]["command"] = "python " + " ".join(sys.argv)
             r = rows[-1]
-            print(f"{algorithm} N={n}, {len(seeds)} seeds: GPS mean {r['gps_mean_m']:.2f} m "
+            print(f"{algorithm} {args.label} N={n}, {len(seeds)} seeds: GPS mean {r['gps_mean_m']:.2f} m "
                   f"(std {r['gps_mean_m_std']:.2f}, 95% CI {r['gps_mean_m_ci'][0]:.2f}-{r['gps_mean_m_ci'][1]:.2f}), "
                   f"wall {r['wall_s']:.1f} s, compile {r['compile_s']:.1f} s", flush=True)
             write_json(args.name, dict(dataset="victoria-park", runs=rows, complete=False))
-    rows.sort(key=lambda r: (r["algorithm"], r["particles"]))
+    rows.sort(key=lambda r: (r.get("label", ""), r["algorithm"], r["particles"]))
     path = write_json(args.name, dict(dataset="victoria-park", runs=rows, complete=True))
-    print_table(rows, ["algorithm", "particles", "gps_mean_m", "gps_mean_m_std", "gps_mean_m_median", "gps_rms_m",
+    print_table(rows, ["label", "algorithm", "particles", "gps_mean_m", "gps_mean_m_std", "gps_mean_m_median", "gps_rms_m",
                        "gps_max_m", "landmarks", "resamplings", "wall_s_per_seed", "compile_s"])
     plot(rows, RESULTS / f"{args.name}.png")
     print(f"wrote {path}")

@@ -11,6 +11,7 @@ error of every seed, log by log, one marker per filter (logs without ground trut
 are listed, not plotted).
 
     python benchmarks/grid_robustness_merge.py benchmarks/results/grid_robustness_{defaults,perturbed_high}.json
+    python benchmarks/grid_robustness_merge.py OLD.json:gmapping-cpp NEW.json   # C++ runs of OLD, the rest of NEW
 """
 
 from __future__ import annotations
@@ -28,18 +29,27 @@ from _common import machine_info, print_table  # noqa: E402
 from grid_robustness import FILTERS, RESULTS, summarize  # noqa: E402
 
 
-def merge(paths: list[Path]) -> tuple[list[dict], list[str]]:
-    """Runs of ``paths`` in order, later ``(log, filter, seed)`` replacing earlier ones;
-    also the list of replaced runs (for the record)."""
+def parse_source(spec: str) -> tuple[Path, set[str] | None]:
+    """``PATH`` (every run) or ``PATH:FILTER[,FILTER..]`` (only those filters' runs)."""
+    path, _, names = spec.partition(":")
+    return Path(path), (set(names.split(",")) if names else None)
+
+
+def merge(sources: list[str | Path]) -> tuple[list[dict], list[str]]:
+    """Runs of ``sources`` in order (see :func:`parse_source`), later ``(log, filter,
+    seed)`` replacing earlier ones; also the list of replaced runs (for the record)."""
     by_key: dict[tuple, dict] = {}
     replaced: list[str] = []
-    for path in paths:
+    for spec in sources:
+        path, only = parse_source(str(spec))
         try:
             payload = json.loads(path.read_text())
             runs = payload["runs"]
         except (OSError, ValueError, KeyError) as error:
             raise SystemExit(f"{path}: not a grid_robustness result ({error})") from error
         for run in runs:
+            if only is not None and run["filter"] not in only:
+                continue
             key = (run["log"], run["filter"], run["seed"])
             if key in by_key:
                 replaced.append(f"{key[0]} {key[1]} seed {key[2]}: {by_key[key]['source']} -> {path.name}")
@@ -82,7 +92,9 @@ def plot(rows: list[dict], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("files", nargs="+", type=Path, help="grid_robustness JSON files, earliest first")
+    parser.add_argument("files", nargs="+",
+                        help="grid_robustness JSON files, earliest first; PATH:FILTER[,FILTER] takes only "
+                             "those filters' runs of a file (e.g. GMapping C++ runs of an earlier part)")
     parser.add_argument("--name", default="", help="suffix of the merged JSON and plot")
     args = parser.parse_args(argv)
     rows, replaced = merge(args.files)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +89,23 @@ def write_grid_outputs(out: Path, result, title: str) -> None:
         ess=result.info["ess"], resampled=result.info["resampled"], particles=result.particles,
         title=title,
     )
+
+
+def prefetch_plotting() -> threading.Thread:
+    """Import matplotlib and :mod:`jaxslam.plotting` on a background thread.
+
+    Importing matplotlib takes about a second, as long as the filter loop of a short
+    run; a run starts this before its filter, so that the import overlaps the loop
+    (XLA releases the GIL while it computes) and the figures at the end need not wait
+    for it. :func:`replot` imports the module as usual (Python's import lock makes it
+    wait for an import under way)."""
+
+    def load():
+        import jaxslam.plotting  # noqa: F401
+
+    thread = threading.Thread(target=load, name="jaxslam-prefetch-plotting", daemon=True)
+    thread.start()
+    return thread
 
 
 def replot(folder: str | Path) -> list[Path]:

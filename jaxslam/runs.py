@@ -21,7 +21,7 @@ import numpy as np
 
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
-from jaxslam.outputs import replot, write_json
+from jaxslam.outputs import prefetch_plotting, replot, write_json
 
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
@@ -343,6 +343,8 @@ def run(
         write_json(out / "run.json", run_args)
     from jaxslam.cache import CompileCounter
 
+    if plots:
+        prefetch_plotting()
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
     args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype)

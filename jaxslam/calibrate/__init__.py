@@ -5,9 +5,26 @@ estimate (stop-gradient resampling, Scibior & Wood 2021).
   for RB/ERB-UPF.
 * :mod:`~jaxslam.calibrate.fit`: ``calibrate`` (optax Adam over log noise levels,
   several filters per step).
+
+The names below are imported on first use: the command line imports
+:mod:`jaxslam.calibrate.cli` for its parser on every ``jaxslam`` call, and loading JAX
+and optax there cost ``jaxslam run`` about a second before it had done anything.
 """
 
-from jaxslam.calibrate.fit import CalibrationResult, calibrate
-from jaxslam.calibrate.landmark import NOISE_NAMES, differentiable_step, log_likelihoods
+from importlib import import_module
+
+_HOMES = {
+    "CalibrationResult": "jaxslam.calibrate.fit",
+    "calibrate": "jaxslam.calibrate.fit",
+    "NOISE_NAMES": "jaxslam.calibrate.landmark",
+    "differentiable_step": "jaxslam.calibrate.landmark",
+    "log_likelihoods": "jaxslam.calibrate.landmark",
+}
 
 __all__ = ["CalibrationResult", "NOISE_NAMES", "calibrate", "differentiable_step", "log_likelihoods"]
+
+
+def __getattr__(name: str):
+    if name in _HOMES:
+        return getattr(import_module(_HOMES[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -42,6 +42,9 @@ class LandmarkEnsembleResult:
         compile_s: compilation time [s] (0 when the program was cached).
         params: the parameters used.
         config: the static configuration used.
+        particle_poses: ``(S, T, N, 3)`` every particle's pose after each step's
+            resampling (with ``record_poses``; None otherwise): with ``info["ancestors"]``
+            the input of :func:`jaxslam.metrics.particle_diagnostics.ancestral_path`.
     """
 
     algorithm: str
@@ -57,6 +60,7 @@ class LandmarkEnsembleResult:
     compile_s: float
     params: Params
     config: Config
+    particle_poses: np.ndarray | None = None
 
     @property
     def resamplings(self) -> np.ndarray:
@@ -64,23 +68,32 @@ class LandmarkEnsembleResult:
         return self.info["resampled"].sum(axis=1)
 
 
-def _one_seed(key, params, controls, observations, obs_mask, initial_pose, config):
+def _step_recording_poses(key, state, control, observation, params, config):
+    """:func:`jaxslam.feature.filter.step` that also returns every particle's pose after
+    the step (after its resampling)."""
+    state, info = feature_filter.step(key, state, control, observation, params, config)
+    return state, (info, state.poses)
+
+
+def _one_seed(key, params, controls, observations, obs_mask, initial_pose, config, record_poses=False):
     state = feature_filter.init(key, params, config, initial_pose)
     observation = feature_filter.Observation(observations, obs_mask)
-    return scan_steps(feature_filter.step, key, state, controls, observation, params, config)
+    step = _step_recording_poses if record_poses else feature_filter.step
+    return scan_steps(step, key, state, controls, observation, params, config)
 
 
-_PROGRAMS: dict[Config, Any] = {}
+_PROGRAMS: dict[tuple[Config, bool], Any] = {}
 _COMPILED: dict[Any, Any] = {}
 
 
-def ensemble_program(config: Config):
+def ensemble_program(config: Config, record_poses: bool = False):
     """The jitted ``(keys (S,), params, controls, observations, obs_mask, initial_pose)
-    -> (final states, infos)`` for ``config``, built once per configuration."""
-    if config not in _PROGRAMS:
-        batched = jax.vmap(_one_seed, (0, None, None, None, None, None, None))
-        _PROGRAMS[config] = jax.jit(lambda *args: batched(*args, config))
-    return _PROGRAMS[config]
+    -> (final states, infos)`` for ``config``, built once per configuration; with
+    ``record_poses`` the second output is ``(infos, particle poses (S, T, N, 3))``."""
+    if (config, record_poses) not in _PROGRAMS:
+        batched = jax.vmap(_one_seed, (0, None, None, None, None, None, None, None))
+        _PROGRAMS[config, record_poses] = jax.jit(lambda *args: batched(*args, config, record_poses))
+    return _PROGRAMS[config, record_poses]
 
 
 def seed_keys(seeds: Sequence[int]) -> jax.Array:
@@ -101,6 +114,7 @@ def run_landmark_ensemble(
     params: Params | dict[str, Any] | None = None,
     config: dict[str, Any] | None = None,
     dtype: Any = jnp.float32,
+    record_poses: bool = False,
 ) -> LandmarkEnsembleResult:
     """Run RB-UPF or ERB-UPF over a whole sequence for every seed as one program.
 
@@ -114,6 +128,8 @@ def run_landmark_ensemble(
         params: a full :class:`Params`, or a dict of overrides on ``params_for``.
         config: overrides of the :class:`Config` fields.
         dtype: float dtype of the filters.
+        record_poses: also return every particle's pose after each step
+            (``particle_poses``, ``S T N 3`` floats).
 
     Memory grows linearly with ``len(seeds)`` (every seed holds its particles' maps).
     """
@@ -131,16 +147,17 @@ def run_landmark_ensemble(
         jnp.asarray(sequence.obs_mask, bool),
         jnp.zeros(3, dtype),
     )
-    signature = (cfg, jax.tree_util.tree_map(lambda x: (jnp.shape(x), jnp.result_type(x)), args))
+    signature = (cfg, record_poses, jax.tree_util.tree_map(lambda x: (jnp.shape(x), jnp.result_type(x)), args))
     compile_s = 0.0
     if signature not in _COMPILED:
         start = time.perf_counter()
-        _COMPILED[signature] = ensemble_program(cfg).lower(*args).compile()
+        _COMPILED[signature] = ensemble_program(cfg, record_poses).lower(*args).compile()
         compile_s = time.perf_counter() - start
     compiled = _COMPILED[signature]
     start = time.perf_counter()
-    state, infos = jax.block_until_ready(compiled(*args))
+    state, outputs = jax.block_until_ready(compiled(*args))
     wall_s = time.perf_counter() - start
+    infos, particle_poses = outputs if record_poses else (outputs, None)
     info = {name: np.asarray(value) for name, value in infos._asdict().items()}
     state = jax.tree_util.tree_map(np.asarray, state)
     best = [int(best_particle(jax.tree_util.tree_map(lambda x: x[i], state))) for i in range(len(keys))]
@@ -158,4 +175,5 @@ def run_landmark_ensemble(
         compile_s=compile_s,
         params=jax.tree_util.tree_map(lambda x: np.asarray(x).tolist(), params),
         config=cfg,
+        particle_poses=None if particle_poses is None else np.asarray(particle_poses),
     )

@@ -38,6 +38,7 @@ from jaxslam.grid.types import (
     Odometry,
     Scan,
     as_odometry,
+    noise_scale_of,
 )
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
@@ -97,7 +98,8 @@ def _step(
         key: PRNG key for this step.
         state: filter state.
         control: :class:`Odometry` (or a bare ``(3,)`` increment) since the previous
-            keyframe; the noise gains are divided by ``sqrt(substeps)``.
+            keyframe; the noise gains are divided by ``sqrt(substeps)`` and
+            multiplied by its ``noise_scale`` (tracked motion).
         observation: the keyframe's scan.
         params: traced parameters.
         config: static configuration.
@@ -107,7 +109,7 @@ def _step(
     control = as_odometry(control)
     dtype = state.poses.dtype
     increment = control.increment.astype(dtype)
-    scale = jax.lax.rsqrt(jnp.maximum(jnp.asarray(control.substeps, dtype), 1.0))
+    scale = noise_scale_of(control, dtype) * jax.lax.rsqrt(jnp.maximum(jnp.asarray(control.substeps, dtype), 1.0))
     keys = jax.random.split(key_motion, n)
     local_points, mask = match_geometry(observation, params, config)
 

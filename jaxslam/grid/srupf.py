@@ -87,6 +87,7 @@ from jaxslam.grid.types import (
     Odometry,
     Scan,
     as_odometry,
+    noise_scale_of,
 )
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
@@ -130,15 +131,18 @@ def ut_params(params: GridSlamParams) -> UTParams:
     return UTParams(params.ut_alpha, params.ut_beta, params.ut_kappa)
 
 
-def predict(pose: Array, pose_sqrt_cov: Array, control: Array, params: GridSlamParams) -> Prediction:
-    """Odometry update, eqs. (1)-(8), for one particle."""
+def predict(
+    pose: Array, pose_sqrt_cov: Array, control: Array, params: GridSlamParams, noise_scale: Array | float = 1.0
+) -> Prediction:
+    """Odometry update, eqs. (1)-(8), for one particle; ``noise_scale`` multiplies the
+    motion-proportional part of Q (tracked motion, :class:`jaxslam.grid.types.Odometry`)."""
     noise_sqrt = motion_noise_sqrt(
         control,
         params.q_linear,
         params.q_angular,
-        params.q_linear_per_m,
-        params.q_angular_per_rad,
-        params.q_angular_per_m,
+        noise_scale * params.q_linear_per_m,
+        noise_scale * params.q_angular_per_rad,
+        noise_scale * params.q_angular_per_m,
     )
     return sqrt_unscented_predict(pose, pose_sqrt_cov, control, noise_sqrt, ut_params(params))
 
@@ -153,6 +157,7 @@ def particle_update(
     mask: Array,
     params: GridSlamParams,
     config: GridSlamConfig,
+    noise_scale: Array | float = 1.0,
 ):
     """Algorithm 2 for one particle: returns ``(nu, next_pose, S, score, log_lik, pd_ok)``.
 
@@ -163,7 +168,7 @@ def particle_update(
     (Algorithm 2, last line).
     """
     dtype = pose.dtype
-    prediction = predict(pose, pose_sqrt_cov, control, params)
+    prediction = predict(pose, pose_sqrt_cov, control, params, noise_scale)
     model = score_model(params)
     kernel = config.score_kernel
     score_fn = make_score_fn(
@@ -225,20 +230,23 @@ def _step(
         key: PRNG key for this step.
         state: filter state.
         control: :class:`Odometry` or a bare ``(3,)`` increment since the previous
-            keyframe (Q is per keyframe; ``substeps`` is not used).
+            keyframe (Q is per keyframe; ``substeps`` is not used; ``noise_scale``
+            multiplies Q's motion-proportional part).
         observation: the keyframe's scan.
         params: traced parameters.
         config: static configuration (``config.correction`` picks pc / npc).
     """
     key_sample, key_resample = jax.random.split(key)
     n = config.num_particles
-    control = as_odometry(control).increment.astype(state.poses.dtype)
+    control = as_odometry(control)
+    noise_scale = noise_scale_of(control, state.poses.dtype)
+    increment = control.increment.astype(state.poses.dtype)
     keys = jax.random.split(key_sample, n)
     local_points, mask = match_geometry(observation, params, config)
 
     def particle(k, table, pose, sqrt_cov):
         read = particle_reader(state, table, config)
-        return particle_update(k, read, pose, sqrt_cov, control, local_points, mask, params, config)
+        return particle_update(k, read, pose, sqrt_cov, increment, local_points, mask, params, config, noise_scale)
 
     nu, samples, sqrt_covs, scores, log_liks, ok = jax.vmap(particle)(
         keys, state.maps.tables, state.poses, state.pose_sqrt_covs

@@ -103,15 +103,19 @@ class GridSlamParams(NamedTuple):
     ``ellipse_radius`` and ``ellipse_step`` (first step; both in standard
     deviations of the prediction), ``ellipse_floor`` (m/rad added to the
     ellipse), ``learning_rate`` (optax refinement, in basis units), ``min_score``
-    (below it the uncorrected pose is kept, GMapping's minimumScore, as a fraction
-    of the matched beams).
+    (at or below it the uncorrected pose is kept, GMapping's minimumScore, as a
+    fraction of the matched beams; 0 as in GMapping: every match that found a wall
+    is taken).
     Keyframes (GMapping's linearUpdate, angularUpdate, temporalUpdate; used by the
     per-scan step, :mod:`jaxslam.grid.tracking`): ``linear_update`` (m),
     ``angular_update`` (rad), ``temporal_update`` (s; negative: off);
     ``track_min_score``: the tracking match between keyframes replaces the odometry
-    only above this score (fraction of matched beams); ``track_min_curvature``: its
+    only above this score (fraction of matched beams; a wall seen once scores at most
+    half, so scans a metre apart in corridors score 0.1-0.3 when right); ``track_min_curvature``: its
     position correction is kept only along directions where the score's curvature
-    (information, per m^2) reaches this (:func:`jaxslam.grid.tracking.constrained_shift`).
+    (information, per m^2) reaches this (:func:`jaxslam.grid.tracking.constrained_shift`);
+    ``track_noise_scale``: the proposals' motion noise with tracking, as a fraction of
+    the odometry model's (:func:`jaxslam.grid.tracking.tracked_noise_scale`).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -143,6 +147,7 @@ class GridSlamParams(NamedTuple):
     temporal_update: Array
     track_min_score: Array
     track_min_curvature: Array
+    track_noise_scale: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -196,12 +201,13 @@ def default_params(
         "ellipse_step": 1.0,
         "ellipse_floor": np.array([0.01, 0.01, 0.005]),
         "learning_rate": 0.3,
-        "min_score": 0.15,
+        "min_score": 0.0,
         "linear_update": 1.0,
         "angular_update": 0.5,
         "temporal_update": -1.0,
-        "track_min_score": 0.3,
+        "track_min_score": 0.1,
         "track_min_curvature": 20.0,
+        "track_noise_scale": 0.2,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,
@@ -271,11 +277,22 @@ class Odometry(NamedTuple):
     frame of the first, the number of laser scans it spans and the time it took (s;
     the temporal keyframe rule of the per-scan step). GMapping draws its motion noise
     once per scan; over ``n`` similar sub-steps the noise standard deviation of the
-    whole increment is ``1/sqrt(n)`` of a single draw on it."""
+    whole increment is ``1/sqrt(n)`` of a single draw on it.
+
+    ``noise_scale`` multiplies the motion-proportional noise of the proposal: the
+    per-scan step (:mod:`jaxslam.grid.tracking`) sets it with tracking
+    (:func:`jaxslam.grid.tracking.tracked_noise_scale`); ``None`` (no leaf) is 1, the
+    wheel odometry's own noise."""
 
     increment: Array
     substeps: Array | float = 1.0
     dt: Array | None = None  # None (no leaf): stacked keyframe controls need not carry it
+    noise_scale: Array | None = None  # None (no leaf): 1
+
+
+def noise_scale_of(control: "Odometry", dtype) -> Array:
+    """``control.noise_scale`` as an array (1 when not given)."""
+    return jnp.asarray(1.0 if control.noise_scale is None else control.noise_scale, dtype)
 
 
 def as_odometry(control) -> Odometry:
@@ -301,4 +318,5 @@ __all__ = [
     "Scan",
     "as_odometry",
     "default_params",
+    "noise_scale_of",
 ]

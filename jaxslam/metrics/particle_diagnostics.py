@@ -61,6 +61,33 @@ def coalescence_depth(ancestors, t: int) -> int:
     return t - s if alive.size == 1 else t + 1
 
 
+def ancestral_path(values, ancestors, final: int) -> np.ndarray:
+    """The history of one particle: ``values`` of its ancestors at every step.
+
+    ``values[t]`` are the particles' values after step ``t``'s resampling (``(T, N,
+    ...)``, e.g. the state's poses) and ``ancestors[t]`` that resampling's ancestors
+    (:class:`jaxslam.feature.filter.Info`): particle ``j`` after step ``t`` descends
+    from particle ``ancestors[t][j]`` after step ``t - 1``. For the particle ``final``
+    after the last step, ``j_{T-1} = final``, ``j_{t-1} = a_t[j_t]`` and the path is
+    ``values[t][j_t]``: in a FastSLAM filter, the trajectory that particle's map was built
+    from (the path posterior's sample), where the weighted mean of each step is the
+    filtered estimate.
+
+    Returns:
+        ``(T, ...)``.
+    """
+    values = np.asarray(values)
+    ancestors = np.asarray(ancestors)
+    if ancestors.ndim != 2 or values.shape[:2] != ancestors.shape:
+        raise ValueError(f"need values (T, N, ...) and ancestors (T, N), got {values.shape} and {ancestors.shape}")
+    index = np.empty(ancestors.shape[0], np.int64)
+    j = int(final)
+    for t in range(ancestors.shape[0] - 1, -1, -1):
+        index[t] = j
+        j = int(ancestors[t, j])
+    return values[np.arange(index.size), index]
+
+
 def landmark_run_summary(
     info: Mapping[str, np.ndarray], obs_mask, particles: int, coalescence_stride: int = 50
 ) -> dict[str, float]:

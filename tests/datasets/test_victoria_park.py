@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from jaxslam.datasets import paths
 from jaxslam.datasets import victoria_park as vp
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
-from jaxslam.metrics.gps import gps_error
+from jaxslam.metrics.gps import align_rigid_2d, gps_error, gps_jump_mask
 
 
 def _have_data() -> bool:
@@ -82,6 +82,46 @@ def test_ascii_dead_reckoning_is_the_recalibrated_mat_data_in_the_same_time_base
     recalibrated = 1.05919 * dead_reckoning.steering[index] + 0.00261
     assert np.abs(ascii_dr.steering - recalibrated).max() < 1e-4
     assert np.abs(ascii_dr.speed - dead_reckoning.speed[index]).max() < 6e-4
+
+
+@needs_data
+def test_acfr_steering_option_applies_the_ascii_recalibration_to_the_whole_mat_log(sequence):
+    prefix = vp.load_sequence(max_steps=600)
+    acfr = vp.load_sequence(max_steps=600, steering="acfr")
+    scale, offset = acfr.meta["steering_fit"]
+    assert scale == pytest.approx(1.05919, abs=2e-5) and offset == pytest.approx(0.00261, abs=2e-5)
+    real = prefix.controls[..., 2] > 0
+    np.testing.assert_allclose(acfr.controls[..., 1][real], scale * prefix.controls[..., 1][real] + offset, atol=1e-12)
+    np.testing.assert_array_equal(acfr.controls[..., [0, 2]], prefix.controls[..., [0, 2]])
+    np.testing.assert_array_equal(acfr.observations, prefix.observations)
+    assert sequence.meta["steering"] == "mat" and sequence.meta["steering_fit"] is None
+    with pytest.raises(ValueError, match="steering"):
+        vp.load_sequence(max_steps=10, steering="ascii")
+
+
+@needs_data
+def test_acfr_steering_makes_dead_reckoning_drift_less(sequence):
+    """The module docstring's figures: dead reckoning over 120 s windows (every 60 s, at
+    least 240 jump-free fixes), each aligned to the GPS on its own, is off by 6.5 m on
+    average with the .mat steering and by 2.7 m with ACFR's recalibration."""
+    keep = gps_jump_mask(sequence.gps_times, sequence.gps_xy)
+
+    def window_mean_error(poses):
+        errors = []
+        for start in np.arange(20.0, sequence.times[-1] - 120.0, 60.0):
+            inside = keep & (sequence.gps_times >= start) & (sequence.gps_times < start + 120.0)
+            if inside.sum() < 240:
+                continue
+            points = np.stack([np.interp(sequence.gps_times[inside], sequence.times, poses[:, i]) for i in (0, 1)], 1)
+            rotation, translation = align_rigid_2d(points, sequence.gps_xy[inside])
+            errors.append(np.linalg.norm(points @ rotation.T + translation - sequence.gps_xy[inside], axis=1).mean())
+        return np.mean(errors), len(errors)
+
+    mat, count = window_mean_error(integrate_car(sequence.controls))
+    acfr, _ = window_mean_error(integrate_car(vp.load_sequence(steering="acfr").controls))
+    print(f"dead reckoning, {count} windows of 120 s: .mat steering {mat:.2f} m, ACFR steering {acfr:.2f} m")
+    assert count >= 15
+    assert mat == pytest.approx(6.5, abs=0.1) and acfr == pytest.approx(2.7, abs=0.1)
 
 
 @needs_data

@@ -47,6 +47,18 @@ def test_params_sweep_does_not_recompile():
     np.testing.assert_array_equal(second.trajectory[1], single.trajectory)
 
 
+def test_recorded_poses_are_the_particles_and_change_nothing_else():
+    seq = simulate(seed=3, **SIM)
+    seeds = (0, 5)
+    plain = ensemble.run_landmark_ensemble(seq, "erb-upf", particles=12, seeds=seeds, config=CONFIG)
+    recorded = ensemble.run_landmark_ensemble(seq, "erb-upf", particles=12, seeds=seeds, config=CONFIG,
+                                              record_poses=True)
+    assert plain.particle_poses is None and recorded.particle_poses.shape == (2, 30, 12, 3)
+    for name, value in plain.info.items():
+        np.testing.assert_array_equal(recorded.info[name], value, err_msg=name)
+    np.testing.assert_array_equal(recorded.particle_poses[:, -1], plain.state.poses)
+
+
 def test_bad_seeds():
     seq = simulate(seed=1, num_steps=3)
     with pytest.raises(ValueError, match="seeds"):

@@ -230,3 +230,35 @@ def test_keyframe_correction_moves_only_along_constrained_directions(sim):
         np.testing.assert_allclose(float(flat[2]), float(free[2]), atol=1e-12)
         _, curved = correct(state, params._replace(track_min_curvature=np.float64(-1e9)), on)
         np.testing.assert_allclose(np.asarray(curved), np.asarray(free), atol=1e-9)
+
+
+def test_keyframe_control_carries_the_tracked_noise_scale(sim):
+    """The per-scan step hands the keyframe step the tracked motion with noise scale
+    ``track_noise_scale`` (also after a refused match: the run is tracked), and 1, the
+    odometry model's own noise, with tracking off."""
+    from jaxslam.grid.filter import empty_info
+    from jaxslam.grid.tracking import per_scan
+    from jaxslam.grid.types import Odometry, noise_scale_of
+
+    def recording_keyframe_step(key, state, control, observation, params, config):
+        # Report the control's noise scale through the state's weights.
+        scale = noise_scale_of(control, state.poses.dtype)
+        return state._replace(log_weights=state.log_weights * 0 + scale), empty_info(state, config)
+
+    step = jax.jit(per_scan(recording_keyframe_step), static_argnums=5)
+    with jax.enable_x64(True):
+        state, scans, params, config = _state_and_scans(sim)
+        params = params._replace(linear_update=np.float64(0.0), track_noise_scale=np.float64(0.25))
+        # The state's particles are at scan 0 with no motion tracked since.
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        control = Odometry(true_step, 1.0, 0.1)
+        new, info = step(jax.random.PRNGKey(1), state, control, scans[3], params, config)
+        assert bool(info.track_accepted)
+        np.testing.assert_allclose(np.asarray(new.log_weights), 0.25, rtol=1e-12)
+        junk = Scan(np.random.default_rng(0).permutation(np.asarray(scans[3].ranges)), scans[3].valid, 0.0)
+        new, info = step(jax.random.PRNGKey(1), state, control, junk, params, config)
+        assert not bool(info.track_accepted)
+        np.testing.assert_allclose(np.asarray(new.log_weights), 0.25, rtol=1e-12)
+        off = dataclasses.replace(config, tracking=False)
+        new, _ = step(jax.random.PRNGKey(1), state, control, scans[3], params, off)
+        np.testing.assert_allclose(np.asarray(new.log_weights), 1.0, rtol=1e-12)

@@ -7,7 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from jaxslam.metrics.particle_diagnostics import coalescence_depth, landmark_run_summary, lineage_changes
+from jaxslam.metrics.particle_diagnostics import (
+    ancestral_path,
+    coalescence_depth,
+    landmark_run_summary,
+    lineage_changes,
+)
 
 
 def _lineage_forward(best, ancestors):
@@ -128,3 +133,24 @@ def test_landmark_run_summary():
     assert s["dropped_landmarks"] == 3
     assert s["max_local_overflow"] == 2
     assert s["nonfinite_particles"] == 1 and s["rejected_landmarks"] == 3
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ancestral_path_is_the_history_each_particle_carries(seed):
+    """A filter whose particles carry their whole history as a list (copied when
+    resampled) gives the same path as tracing the ancestors back."""
+    rng = np.random.default_rng(seed)
+    steps, n = 30, 6
+    histories = [[] for _ in range(n)]
+    values = np.zeros((steps, n, 2))
+    ancestors = np.zeros((steps, n), np.int64)
+    for t in range(steps):
+        for j in range(n):
+            histories[j].append((t, rng.normal()))
+        ancestors[t] = rng.integers(0, n, n) if rng.random() < 0.5 else np.arange(n)
+        histories = [list(histories[a]) for a in ancestors[t]]
+        values[t] = [h[-1] for h in histories]
+    for final in range(n):
+        np.testing.assert_array_equal(ancestral_path(values, ancestors, final), np.array(histories[final]))
+    with pytest.raises(ValueError):
+        ancestral_path(values[:, :3], ancestors, 0)
