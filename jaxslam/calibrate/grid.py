@@ -82,7 +82,7 @@ from jaxslam.driver import step_keys
 from jaxslam.grid import srupf
 from jaxslam.grid.filter import match_geometry, particle_reader, score_model
 from jaxslam.grid.score import scan_log_likelihood
-from jaxslam.grid.tracking import track
+from jaxslam.grid.tracking import track, tracked_noise_scale
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
 
 # The noise levels calibrated by default (log space): Q's constant and
@@ -135,9 +135,13 @@ def predictive_log_likelihood(
     params: GridSlamParams, config: GridSlamConfig, samples: int,
 ) -> tuple[Array, srupf.Prediction]:
     r""":math:`\log \hat p(z_t \mid z_{1:t-1})` of a keyframe (module docstring) and the
-    particles' predictions, from the state before the step and the keyframe's motion."""
+    particles' predictions, from the state before the step and the keyframe's motion.
+    The motion-proportional noise is scaled as the filter scales it
+    (:func:`jaxslam.grid.tracking.tracked_noise_scale`), so the calibrated levels are the
+    parameters ``jaxslam run --params`` takes."""
     dtype = state.poses.dtype
-    prediction = jax.vmap(srupf.predict, (0, 0, None, None))(state.poses, pose_sqrt_covs, motion, params)
+    scale = tracked_noise_scale(params, config)
+    prediction = jax.vmap(srupf.predict, (0, 0, None, None, None))(state.poses, pose_sqrt_covs, motion, params, scale)
     eps = jax.random.normal(key, (config.num_particles, samples, 3), dtype)
     poses = prediction.mean[:, None, :] + jnp.einsum("pij,pkj->pki", prediction.sqrt_cov, eps)
     poses = poses.at[..., 2].set(se2.wrap_angle(poses[..., 2]))
@@ -183,7 +187,9 @@ def differentiable_scan_step(
     # The factor update of the filter itself, from its keyframe control (as per_scan
     # computes it: a deterministic function of the same inputs) and corrected poses.
     motion, _, _ = track(fixed, control.increment, observation, fixed_params, config)
-    prediction = jax.vmap(srupf.predict, (0, 0, None, None))(fixed.poses, carry.pose_sqrt_covs, motion, params)
+    scale = tracked_noise_scale(params, config)
+    prediction = jax.vmap(srupf.predict, (0, 0, None, None, None))(fixed.poses, carry.pose_sqrt_covs, motion, params,
+                                                                   scale)
     noise = jnp.diag(params.match_noise.astype(prediction.mean.dtype))
     update = jax.vmap(srupf.sqrt_measurement_update, (0, 0, None))(
         prediction, jax.lax.stop_gradient(info.poses), noise
