@@ -17,7 +17,8 @@ Parts (``--part``, repeatable; default all):
   calibrated levels are the iterate kept on the validation scans; the iterate with
   the best training objective is evaluated too when it differs (and the last with
   ``--vp-eval-last``). ``--vp-from JSON`` re-evaluates a calibration stored by an
-  earlier run instead of running it again. ``--vp-val-particles`` (default
+  earlier run instead of running it again (its kept iterate chosen again with this
+  run's validation options with ``--revalidate``). ``--vp-val-particles`` (default
   ``--vp-particles``): particles of the validation filters.
 
 * ``grid``: SRUPF-GM (:mod:`jaxslam.calibrate.grid`): calibrate the odometry and
@@ -28,7 +29,9 @@ Parts (``--part``, repeatable; default all):
   runs.
 
 Every calibration keeps the iterate chosen on the held-out end of its window
-(``--validation``, ``--validate-every``, ``--validation-filters``; see
+(``--validation``, ``--validate-every``, ``--validation-filters``,
+``--validation-likelihood``: the validation filters' weights, by default the gated
+weights of the filter ``jaxslam run`` runs; see
 :mod:`jaxslam.calibrate.fit`). ``--likelihood`` picks the landmark objective
 (``mixture``, the default of :func:`jaxslam.calibrate.calibrate`, or the paper's
 ``gated`` weights).
@@ -77,7 +80,8 @@ def _fit_options(args, particles: int) -> dict:
     """calibrate()'s step-size and validation options from the command line."""
     return dict(learning_rate=args.learning_rate, decay=args.decay, validation=args.validation,
                 validate_every=args.validate_every, validation_filters=args.validation_filters,
-                validation_particles=particles, likelihood=args.likelihood)
+                validation_particles=particles, likelihood=args.likelihood,
+                validation_likelihood=args.validation_likelihood, validation_margin=args.validation_margin)
 
 
 def part_sim(args) -> dict:
@@ -184,6 +188,35 @@ def _evaluate(seq, params, args, half) -> dict:
             if len(rows) > 1 else None}
 
 
+def _revalidate(seq, cal: dict, args) -> tuple[int, dict]:
+    """Choose the kept iterate of a stored Victoria Park calibration again, on its own
+    held-out scans (``fit_window:window``), with this run's validation options
+    (``--validation-likelihood``, ``--validate-every``, ``--validation-filters``,
+    ``--vp-val-particles``): the same scoring as ``calibrate()``'s."""
+    from jaxslam.calibrate.fit import validate, validation_score, validation_steps
+    from jaxslam.feature.experiment import ALGORITHMS
+    from jaxslam.feature.params import Config
+
+    fit, window = int(cal["fit_window"]), int(cal["window"])
+    particles = args.vp_val_particles or args.vp_particles
+    cfg = Config(num_particles=particles, proposal=ALGORITHMS["erb-upf"], likelihood=cal.get("likelihood", "mixture"))
+    params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params_for(seq))
+    data = (jnp.asarray(seq.controls[:window], jnp.float32), jnp.asarray(seq.observations[:window], jnp.float32),
+            jnp.asarray(seq.obs_mask[:window], bool), jnp.zeros(3, jnp.float32))
+    score = validation_score(cfg, NAMES, params, data, fit, particles, args.validation_likelihood)
+    steps = validation_steps(len(cal["parameter_trajectory"]) - 1, args.validate_every)
+    start = time.perf_counter()
+    scores, chosen = validate(score, cal["parameter_trajectory"], steps, args.validation_filters, args.seed,
+                              args.validation_margin)
+    record = {"fit_scans": fit, "scans": window, "filters": args.validation_filters, "particles": particles,
+              "margin": args.validation_margin, "steps": steps, "scores": scores, "selected": chosen,
+              "time_s": time.perf_counter() - start, "likelihood": args.validation_likelihood,
+              "mean_scores": np.asarray(scores).mean(1).tolist(), "selected_step": steps[chosen]}
+    print("re-validated:", {s: round(m, 3) for s, m in zip(steps, record["mean_scores"])}, "kept step",
+          steps[chosen], flush=True)
+    return steps[chosen], record
+
+
 def part_vp(args) -> dict:
     from jaxslam.datasets import victoria_park
 
@@ -197,7 +230,12 @@ def part_vp(args) -> dict:
             curve, path = cal["log_likelihood"], cal["parameter_trajectory"]
         except (OSError, ValueError, KeyError) as error:
             raise SystemExit(f"{args.vp_from}: no Victoria Park calibration in it ({error})") from error
-        best = int(np.argmax(curve))  # as calibrate(): curve[i] is the objective at path[i]
+        if args.revalidate:
+            best, record = _revalidate(seq, cal, args)
+            cal = {**cal, "validation": record, "train_best_step": int(np.argmax(curve)),
+                   "train_best": dict(zip(NAMES, path[int(np.argmax(curve))]))}
+        else:
+            best = int(np.argmax(curve))  # curve[i] is the objective at path[i]
         cal = {**cal, "from": str(args.vp_from), "best_step": best,
                "after": dict(zip(NAMES, path[best])), "last": dict(zip(NAMES, path[-1]))}
     else:
@@ -216,7 +254,7 @@ def part_vp(args) -> dict:
     print("calibrated (best iterate, step %d):" % cal["best_step"], cal["after"], flush=True)
     out = {"calibration": cal, "half_scan": int(half), "particles": args.vp_particles, "seeds": args.vp_seeds}
     candidates = [("paper", params_for(seq)), ("calibrated", params_for(seq, **cal["after"]))]
-    if cal.get("train_best", cal["after"]) != cal["after"]:
+    if cal.get("train_best", cal["after"]) != cal["after"] and not args.vp_from:
         candidates.append(("calibrated_train_best", params_for(seq, **cal["train_best"])))
     if cal["last"] != cal["after"] and args.vp_eval_last:
         candidates.append(("calibrated_last", params_for(seq, **cal["last"])))
@@ -359,6 +397,10 @@ def main() -> None:
     ap.add_argument("--validation", type=float, default=0.25, help="held-out fraction of the window (0: none)")
     ap.add_argument("--validate-every", type=int, default=5)
     ap.add_argument("--validation-filters", type=int, default=8)
+    ap.add_argument("--validation-margin", type=float, default=2.0,
+                    help="standard errors of the paired difference an iterate must beat the start by")
+    ap.add_argument("--validation-likelihood", choices=["gated", "mixture"], default="gated",
+                    help="weights of the validation filters (the filter you will run: gated)")
     ap.add_argument("--sim-seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--sim-window", type=int, default=60)
     ap.add_argument("--sim-particles", type=int, default=20)
@@ -373,6 +415,8 @@ def main() -> None:
     ap.add_argument("--vp-particles", type=int, default=100)
     ap.add_argument("--vp-val-particles", type=int, default=None, help="default: --vp-particles")
     ap.add_argument("--vp-eval-last", action="store_true", help="also evaluate the last iterate")
+    ap.add_argument("--revalidate", action="store_true",
+                    help="with --vp-from: choose the kept iterate again with this run's validation options")
     ap.add_argument("--vp-eval-steps", type=int, nargs="*", default=[], help="also evaluate these iterates")
     ap.add_argument("--vp-seeds", type=int, default=5)
     ap.add_argument("--likelihood", choices=["mixture", "gated"], default="mixture")

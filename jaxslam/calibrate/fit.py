@@ -31,6 +31,15 @@ data by more than the evaluation noise. Without validation (``validation=0``) th
 kept iterate is the one with the largest training objective (noisy: each step's
 value comes from fresh keys).
 
+The validation filters weigh as the filter you will run weighs
+(``validation_likelihood``, default ``"gated"``: ``jaxslam run --params`` runs the
+paper's gated filter), whatever the objective's likelihood. The mixture filter of
+the objective keeps track at noise levels where the gated filter already loses it
+(Victoria Park, the stored iterates of ``calibration_vp_validated``: at step 12 one
+of five gated validation filters loses track on scans 2711-3615 and none of the
+mixture filters does, so the mixture validation kept step 12, which lost track on
+the second half, and the gated one keeps step 8).
+
 **Landmark filters** (:func:`calibrate`). The objective is the filter's estimate of
 :math:`\log Z` under the detection/clutter mixture likelihood by default
 (``likelihood="mixture"``, ``Config.likelihood``; see
@@ -71,6 +80,7 @@ class Validation:
         scores: ``(len(steps), filters)`` mean held-out log-likelihood per scan.
         selected: the index into ``steps`` of the kept iterate.
         time_s: time of all validation runs (compilation included) [s].
+        likelihood: the validation filters' weights (landmark filters; None elsewhere).
     """
 
     fit_scans: int
@@ -82,6 +92,7 @@ class Validation:
     scores: list[list[float]]
     selected: int
     time_s: float
+    likelihood: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         scores = np.asarray(self.scores)
@@ -337,6 +348,25 @@ def increments_program(config: Config, names: Sequence[str] = NOISE_NAMES):
     return _PROGRAMS[("increments", config, names)]
 
 
+def validation_score(
+    config: Config, names: Sequence[str], params: Any, data: tuple, fit_window: int, particles: int,
+    likelihood: str, dtype: Any = jnp.float32,
+) -> Callable[[jax.Array, Any], np.ndarray]:
+    """``score(keys (S,), log_noise) -> (S,)``: the mean one-step log-likelihood of
+    scans ``fit_window:`` of ``data`` (controls, observations, obs_mask, initial pose of
+    the whole window) under filters of ``particles`` particles weighing by
+    ``likelihood``, run from the first scan."""
+    if likelihood not in ("gated", "mixture"):
+        raise ValueError(f"validation likelihood must be 'gated' or 'mixture', got {likelihood!r}")
+    increments = increments_program(dataclasses.replace(config, num_particles=particles, likelihood=likelihood),
+                                    names)
+
+    def score(keys, th):
+        return np.asarray(increments(keys, jnp.asarray(th).astype(dtype), params, *data))[:, fit_window:].mean(1)
+
+    return score
+
+
 def calibrate(
     sequence: Any,
     algorithm: str = "erb-upf",
@@ -358,6 +388,7 @@ def calibrate(
     validation_filters: int = 8,
     validation_particles: int | None = None,
     validation_margin: float = 2.0,
+    validation_likelihood: str = "gated",
 ) -> CalibrationResult:
     r"""Maximise the landmark filter's log marginal likelihood estimate over the log
     noise levels and keep the iterate that does best on held-out scans (see the module
@@ -387,6 +418,9 @@ def calibrate(
         validation_particles: particles of the validation filters (default
             ``particles``; use the count the calibrated filter will run with).
         validation_margin: standard errors a candidate must beat the start by.
+        validation_likelihood: the weights of the validation filters (``"gated"``, the
+            paper's, which ``jaxslam run`` uses; or ``"mixture"``): those of the filter
+            the calibrated levels are for.
     """
     if algorithm not in ALGORITHMS:
         raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}")
@@ -416,16 +450,15 @@ def calibrate(
     theta = jnp.asarray(log_noise_of(params, names), dtype)
     score, val_particles = None, validation_particles or particles
     if fit_window < window:
-        increments = increments_program(dataclasses.replace(cfg, num_particles=val_particles), names)
-        val_data = data(window)
-
-        def score(keys, th):
-            return np.asarray(increments(keys, th.astype(dtype), params_arr, *val_data))[:, fit_window:].mean(1)
+        score = validation_score(cfg, names, params_arr, data(window), fit_window, val_particles,
+                                 validation_likelihood, dtype)
 
     ascent, best, train_best, record = fit_and_select(
         program, (params_arr, *fit_data), theta, steps, learning_rate, filters, seed, decay, callback, score,
         (fit_window, window, val_particles), validate_every, validation_filters, validation_margin,
     )
+    if record is not None:
+        record = dataclasses.replace(record, likelihood=validation_likelihood)
     path = ascent.trajectory
     after = with_log_noise(params, np.log(np.asarray(path[best], float)), names)
     after = jax.tree_util.tree_map(lambda x: np.asarray(x).tolist(), after)

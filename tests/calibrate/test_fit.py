@@ -71,3 +71,36 @@ def test_validation_keeps_the_better_of_start_and_step(start_factor, kept):
     scores = np.asarray(result.validation.scores)
     assert scores.shape == (2, 6)
     assert (scores[1].mean() > scores[0].mean()) == (kept == 1)
+
+
+def test_validation_scores_with_the_weights_of_the_filter_to_be_run():
+    """validation_score runs filters of the asked particle count and weights (the
+    gated filter that ``jaxslam run`` runs by default) and averages the held-out
+    scans' one-step log-likelihoods; the two weights give different scores."""
+    import dataclasses
+
+    import jax
+
+    from jaxslam.calibrate.fit import validation_score
+    from jaxslam.calibrate.landmark import log_likelihoods, log_noise_of, with_log_noise
+    from jaxslam.feature.experiment import ALGORITHMS
+    from jaxslam.feature.params import Config
+
+    seq = simulate(seed=2, **SIM)
+    names = ("range_std", "bearing_std")
+    params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params_for(seq))
+    cfg = Config(num_particles=4, proposal=ALGORITHMS["erb-upf"], likelihood="mixture", capacity=48, local_size=24)
+    data = (jnp.asarray(seq.controls, jnp.float32), jnp.asarray(seq.observations, jnp.float32),
+            jnp.asarray(seq.obs_mask, bool), jnp.zeros(3, jnp.float32))
+    keys = jax.random.split(jax.random.PRNGKey(3), 3)
+    theta = jnp.asarray(log_noise_of(params_for(seq), names), jnp.float32) - 0.5
+    scores = {}
+    for lik in ("gated", "mixture"):
+        scores[lik] = validation_score(cfg, names, params, data, 16, 6, lik)(keys, theta)
+        c = dataclasses.replace(cfg, num_particles=6, likelihood=lik)
+        expected = [float(np.mean(np.asarray(log_likelihoods(k, with_log_noise(params, theta, names), c, *data,
+                                                                checkpoint=False))[16:])) for k in keys]
+        np.testing.assert_allclose(scores[lik], expected, rtol=1e-5, atol=1e-5)
+    assert not np.allclose(scores["gated"], scores["mixture"])
+    with pytest.raises(ValueError, match="validation likelihood"):
+        validation_score(cfg, names, params, data, 16, 6, "soft")
