@@ -30,8 +30,9 @@ Parts (``--part``, repeatable; default all):
 
 Every calibration keeps the iterate chosen on the held-out end of its window
 (``--validation``, ``--validate-every``, ``--validation-filters``,
-``--validation-likelihood``: the validation filters' weights, by default the gated
-weights of the filter ``jaxslam run`` runs; see
+``--guard-likelihood``: the weights of the filter you will run, by default the gated
+weights of ``jaxslam run``, whose validation filters must not do worse than at the
+start; see
 :mod:`jaxslam.calibrate.fit`). ``--likelihood`` picks the landmark objective
 (``mixture``, the default of :func:`jaxslam.calibrate.calibrate`, or the paper's
 ``gated`` weights).
@@ -76,12 +77,16 @@ def progress(label: str):
     return show
 
 
+def _guard(args) -> str | None:
+    return None if args.guard_likelihood == "none" else args.guard_likelihood
+
+
 def _fit_options(args, particles: int) -> dict:
     """calibrate()'s step-size and validation options from the command line."""
     return dict(learning_rate=args.learning_rate, decay=args.decay, validation=args.validation,
                 validate_every=args.validate_every, validation_filters=args.validation_filters,
                 validation_particles=particles, likelihood=args.likelihood,
-                validation_likelihood=args.validation_likelihood, validation_margin=args.validation_margin)
+                guard_likelihood=_guard(args), validation_margin=args.validation_margin)
 
 
 def part_sim(args) -> dict:
@@ -191,7 +196,7 @@ def _evaluate(seq, params, args, half) -> dict:
 def _revalidate(seq, cal: dict, args) -> tuple[int, dict]:
     """Choose the kept iterate of a stored Victoria Park calibration again, on its own
     held-out scans (``fit_window:window``), with this run's validation options
-    (``--validation-likelihood``, ``--validate-every``, ``--validation-filters``,
+    (``--guard-likelihood``, ``--validate-every``, ``--validation-filters``,
     ``--vp-val-particles``): the same scoring as ``calibrate()``'s."""
     from jaxslam.calibrate.fit import validate, validation_score, validation_steps
     from jaxslam.feature.experiment import ALGORITHMS
@@ -203,16 +208,20 @@ def _revalidate(seq, cal: dict, args) -> tuple[int, dict]:
     params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params_for(seq))
     data = (jnp.asarray(seq.controls[:window], jnp.float32), jnp.asarray(seq.observations[:window], jnp.float32),
             jnp.asarray(seq.obs_mask[:window], bool), jnp.zeros(3, jnp.float32))
-    score = validation_score(cfg, NAMES, params, data, fit, particles, args.validation_likelihood)
+    likelihood = cal.get("likelihood", "mixture")
+    score = validation_score(cfg, NAMES, params, data, fit, particles, likelihood)
+    guard = None if _guard(args) is None else validation_score(cfg, NAMES, params, data, fit, particles, _guard(args))
     steps = validation_steps(len(cal["parameter_trajectory"]) - 1, args.validate_every)
     start = time.perf_counter()
-    scores, chosen = validate(score, cal["parameter_trajectory"], steps, args.validation_filters, args.seed,
-                              args.validation_margin)
+    scores, guards, chosen = validate(score, cal["parameter_trajectory"], steps, args.validation_filters, args.seed,
+                                      args.validation_margin, guard)
     record = {"fit_scans": fit, "scans": window, "filters": args.validation_filters, "particles": particles,
               "margin": args.validation_margin, "steps": steps, "scores": scores, "selected": chosen,
-              "time_s": time.perf_counter() - start, "likelihood": args.validation_likelihood,
-              "mean_scores": np.asarray(scores).mean(1).tolist(), "selected_step": steps[chosen]}
-    print("re-validated:", {s: round(m, 3) for s, m in zip(steps, record["mean_scores"])}, "kept step",
+              "time_s": time.perf_counter() - start, "likelihood": likelihood, "guard_likelihood": _guard(args),
+              "guard_scores": guards, "mean_scores": np.asarray(scores).mean(1).tolist(),
+              "selected_step": steps[chosen]}
+    print("re-validated:", {s: round(m, 3) for s, m in zip(steps, record["mean_scores"])}, "guard",
+          None if guards is None else {s: round(min(g), 3) for s, g in zip(steps, guards)}, "kept step",
           steps[chosen], flush=True)
     return steps[chosen], record
 
@@ -399,8 +408,9 @@ def main() -> None:
     ap.add_argument("--validation-filters", type=int, default=8)
     ap.add_argument("--validation-margin", type=float, default=2.0,
                     help="standard errors of the paired difference an iterate must beat the start by")
-    ap.add_argument("--validation-likelihood", choices=["gated", "mixture"], default="gated",
-                    help="weights of the validation filters (the filter you will run: gated)")
+    ap.add_argument("--guard-likelihood", choices=["gated", "mixture", "none"], default="gated",
+                    help="weights of the filter you will run: no validation filter with them may do worse than "
+                         "with the start ('none': no guard)")
     ap.add_argument("--sim-seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--sim-window", type=int, default=60)
     ap.add_argument("--sim-particles", type=int, default=20)

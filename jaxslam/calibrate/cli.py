@@ -53,8 +53,9 @@ def add_parser(sub, positive_int, nonneg_int) -> None:
                      help="filters per validated iterate (the same keys for all)")
     cal.add_argument("--validation-particles", type=positive_int, default=None,
                      help="particles of the validation filters (default --particles; use the count you will run)")
-    cal.add_argument("--validation-likelihood", choices=["gated", "mixture"], default="gated",
-                     help="weights of the validation filters: those of the filter you will run (jaxslam run: gated)")
+    cal.add_argument("--guard-likelihood", choices=["gated", "mixture", "none"], default="gated",
+                     help="weights of the filter you will run (jaxslam run: gated): an iterate is kept only if "
+                          "no validation filter with them does worse than with the start ('none': no guard)")
     cal.add_argument("--float64", action="store_true", help="double precision")
     cal.add_argument("--no-plots", action="store_true", help="skip calibration.png")
 
@@ -90,7 +91,8 @@ def run(args) -> dict[str, Any]:
             sequence = info.load(seed=args.seed, max_steps=window)
             out.mkdir(parents=True, exist_ok=True)
             result = calibrate(sequence, args.algorithm, likelihood=args.likelihood,
-                               validation_likelihood=args.validation_likelihood, **options)
+                               guard_likelihood=None if args.guard_likelihood == "none" else args.guard_likelihood,
+                               **options)
         else:
             from jaxslam.calibrate.grid import calibrate_grid
             from jaxslam.runs import _load_log

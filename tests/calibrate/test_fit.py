@@ -37,6 +37,23 @@ def test_select_by_validation_keeps_the_start_unless_clearly_better():
         select_by_validation(np.zeros(3))
 
 
+def test_the_guard_excludes_an_iterate_under_which_the_run_filter_does_worse():
+    """Candidate 2 has the best scores, but one of its guard filters (the filter you
+    will run) loses track: candidate 1 is kept. Without the guard, candidate 2."""
+    rng = np.random.default_rng(1)
+    start = rng.normal(0.0, 1.0, 5)
+    scores = np.stack([start, start + 3.0, start + 4.0])
+    guard = np.stack([start, start + 2.0, start + 2.5])
+    assert select_by_validation(scores, guard=guard) == 2
+    guard[2, 3] = start[3] - 10.0  # one filter of candidate 2 lost track
+    assert select_by_validation(scores, guard=guard) == 1
+    assert select_by_validation(scores) == 2
+    guard[1, 0] = np.nan  # a non-finite guard score excludes its candidate too
+    assert select_by_validation(scores, guard=guard) == 0
+    with pytest.raises(ValueError, match="shape"):
+        select_by_validation(scores, guard=guard[:2])
+
+
 def test_validation_split_and_candidates():
     assert split_window(200, 0.25) == 150
     assert split_window(200, 0.0) == 200
@@ -71,6 +88,9 @@ def test_validation_keeps_the_better_of_start_and_step(start_factor, kept):
     scores = np.asarray(result.validation.scores)
     assert scores.shape == (2, 6)
     assert (scores[1].mean() > scores[0].mean()) == (kept == 1)
+    # The guard (the gated filter jaxslam run runs) was scored with the same keys.
+    assert result.validation.likelihood == "mixture" and result.validation.guard_likelihood == "gated"
+    assert np.asarray(result.validation.guard_scores).shape == (2, 6)
 
 
 def test_validation_scores_with_the_weights_of_the_filter_to_be_run():
