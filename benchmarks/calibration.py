@@ -4,7 +4,9 @@ Parts (``--part``, repeatable; default all):
 
 * ``sim``: simulator recovery. The simulator's true noise levels, then starting from
   all four noise levels 3x too large and 3x too small, ``calibrate`` on the first
-  ``--sim-window`` scans; reports the recovered / true ratios.
+  ``--sim-window`` scans; reports the recovered / true ratios. ``--sim-from JSON
+  --revalidate`` chooses the kept iterates of stored runs again with this run's guard
+  (part ``sim_revalidated``).
 * ``time``: the time of one value-and-gradient evaluation of ``log Z`` on the first
   ``--time-scans`` Victoria Park scans with ``--time-particles`` particles (1 filter),
   compilation apart.
@@ -58,7 +60,7 @@ import numpy as np  # noqa: E402
 from _common import RESULTS, machine_info, print_table, write_json  # noqa: E402
 
 from jaxslam.calibrate import landmark as L  # noqa: E402
-from jaxslam.calibrate.fit import calibrate, value_and_grads  # noqa: E402
+from jaxslam.calibrate.fit import calibrate, validation_steps, value_and_grads  # noqa: E402
 from jaxslam.feature.experiment import params_for  # noqa: E402
 from jaxslam.feature.params import Config  # noqa: E402
 
@@ -193,37 +195,59 @@ def _evaluate(seq, params, args, half) -> dict:
             if len(rows) > 1 else None}
 
 
-def _revalidate(seq, cal: dict, args) -> tuple[int, dict]:
-    """Choose the kept iterate of a stored Victoria Park calibration again, on its own
-    held-out scans (``fit_window:window``), with this run's validation options
-    (``--guard-likelihood``, ``--validate-every``, ``--validation-filters``,
-    ``--vp-val-particles``): the same scoring as ``calibrate()``'s."""
-    from jaxslam.calibrate.fit import validate, validation_score, validation_steps
+def _revalidate(seq, trajectory, fit: int, window: int, likelihood: str, steps: list[int], filters: int,
+                particles: int, seed: int, margin: float, guard_likelihood: str | None,
+                config: dict | None = None) -> tuple[int, dict]:
+    """Choose the kept iterate of a stored calibration (its parameter ``trajectory``)
+    again on its held-out scans ``fit:window``, scored by ``likelihood`` filters and
+    guarded by ``guard_likelihood`` filters (None: no guard), with the keys
+    ``calibrate(seed=seed)`` used: the same computation as ``calibrate()``'s."""
+    from jaxslam.calibrate.fit import validate, validation_score
     from jaxslam.feature.experiment import ALGORITHMS
-    from jaxslam.feature.params import Config
 
-    fit, window = int(cal["fit_window"]), int(cal["window"])
-    particles = args.vp_val_particles or args.vp_particles
-    cfg = Config(num_particles=particles, proposal=ALGORITHMS["erb-upf"], likelihood=cal.get("likelihood", "mixture"))
+    cfg = Config(num_particles=particles, proposal=ALGORITHMS["erb-upf"], likelihood=likelihood, **(config or {}))
     params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params_for(seq))
     data = (jnp.asarray(seq.controls[:window], jnp.float32), jnp.asarray(seq.observations[:window], jnp.float32),
             jnp.asarray(seq.obs_mask[:window], bool), jnp.zeros(3, jnp.float32))
-    likelihood = cal.get("likelihood", "mixture")
     score = validation_score(cfg, NAMES, params, data, fit, particles, likelihood)
-    guard = None if _guard(args) is None else validation_score(cfg, NAMES, params, data, fit, particles, _guard(args))
-    steps = validation_steps(len(cal["parameter_trajectory"]) - 1, args.validate_every)
+    guard = None if guard_likelihood is None else validation_score(cfg, NAMES, params, data, fit, particles,
+                                                                    guard_likelihood)
     start = time.perf_counter()
-    scores, guards, chosen = validate(score, cal["parameter_trajectory"], steps, args.validation_filters, args.seed,
-                                      args.validation_margin, guard)
-    record = {"fit_scans": fit, "scans": window, "filters": args.validation_filters, "particles": particles,
-              "margin": args.validation_margin, "steps": steps, "scores": scores, "selected": chosen,
-              "time_s": time.perf_counter() - start, "likelihood": likelihood, "guard_likelihood": _guard(args),
+    scores, guards, chosen = validate(score, trajectory, steps, filters, seed, margin, guard)
+    record = {"fit_scans": fit, "scans": window, "filters": filters, "particles": particles,
+              "margin": margin, "steps": steps, "scores": scores, "selected": chosen,
+              "time_s": time.perf_counter() - start, "likelihood": likelihood, "guard_likelihood": guard_likelihood,
               "guard_scores": guards, "mean_scores": np.asarray(scores).mean(1).tolist(),
               "selected_step": steps[chosen]}
     print("re-validated:", {s: round(m, 3) for s, m in zip(steps, record["mean_scores"])}, "guard",
           None if guards is None else {s: round(min(g), 3) for s, g in zip(steps, guards)}, "kept step",
           steps[chosen], flush=True)
     return steps[chosen], record
+
+
+def part_sim_revalidate(args) -> dict:
+    """``--sim-from JSON --revalidate``: the stored simulator runs' kept iterates chosen
+    again with this run's guard (their own held-out scans, filters, particles, keys)."""
+    from jaxslam.datasets.landmark_sim import simulate
+
+    try:
+        sim = json.loads(Path(args.sim_from).read_text())["sim"]
+    except (OSError, ValueError, KeyError) as error:
+        raise SystemExit(f"{args.sim_from}: no simulator calibration in it ({error})") from error
+    runs = []
+    for run in sim["runs"]:
+        seed, v = run["seed"], run["validation"]
+        seq = simulate(seed=seed, num_steps=sim["window"])
+        truth = sim["truths"][str(seed)]
+        step, record = _revalidate(seq, run["parameter_trajectory"], v["fit_scans"], v["scans"],
+                                   sim.get("likelihood", "mixture"), v["steps"], v["filters"], v["particles"], seed,
+                                   v["margin"], _guard(args), config=dict(capacity=128, local_size=48))
+        ratios = {n: run["parameter_trajectory"][step][i] / truth[n] for i, n in enumerate(NAMES)}
+        runs.append({"seed": seed, "start_factor": run["start_factor"], "stored_best_step": run["best_step"],
+                     "best_step": step, "ratio_to_true": ratios, "validation": record})
+        print(f"seed {seed} start x{run['start_factor']:.3g}: stored step {run['best_step']}, kept {step}: "
+              + ", ".join(f"{n} {ratios[n]:.3f}" for n in NAMES), flush=True)
+    return {"from": str(args.sim_from), "guard_likelihood": _guard(args), "runs": runs}
 
 
 def part_vp(args) -> dict:
@@ -240,7 +264,10 @@ def part_vp(args) -> dict:
         except (OSError, ValueError, KeyError) as error:
             raise SystemExit(f"{args.vp_from}: no Victoria Park calibration in it ({error})") from error
         if args.revalidate:
-            best, record = _revalidate(seq, cal, args)
+            best, record = _revalidate(
+                seq, path, int(cal["fit_window"]), int(cal["window"]), cal.get("likelihood", "mixture"),
+                validation_steps(len(path) - 1, args.validate_every), args.validation_filters,
+                args.vp_val_particles or args.vp_particles, args.seed, args.validation_margin, _guard(args))
             cal = {**cal, "validation": record, "train_best_step": int(np.argmax(curve)),
                    "train_best": dict(zip(NAMES, path[int(np.argmax(curve))]))}
         else:
@@ -426,7 +453,7 @@ def main() -> None:
     ap.add_argument("--vp-val-particles", type=int, default=None, help="default: --vp-particles")
     ap.add_argument("--vp-eval-last", action="store_true", help="also evaluate the last iterate")
     ap.add_argument("--revalidate", action="store_true",
-                    help="with --vp-from: choose the kept iterate again with this run's validation options")
+                    help="with --vp-from / --sim-from: choose the kept iterate again with this run's guard")
     ap.add_argument("--vp-eval-steps", type=int, nargs="*", default=[], help="also evaluate these iterates")
     ap.add_argument("--vp-seeds", type=int, default=5)
     ap.add_argument("--likelihood", choices=["mixture", "gated"], default="mixture")
@@ -438,6 +465,8 @@ def main() -> None:
     ap.add_argument("--grid-seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--grid-heldout-end", type=int, default=3000,
                     help="held-out predictive likelihood on scans [grid-window, this)")
+    ap.add_argument("--sim-from", default=None, metavar="JSON",
+                    help="sim part, with --revalidate: choose the stored runs' kept iterates again")
     ap.add_argument("--vp-from", default=None, metavar="JSON",
                     help="vp part: evaluate the calibration stored in JSON instead of running it again")
     ap.add_argument("--name", default="calibration")
@@ -445,8 +474,18 @@ def main() -> None:
     parts = args.part or ["sim", "time", "vp", "grid"]
     payload = {"machine": machine_info(), "args": vars(args)}
     for part in parts:
-        payload[part] = {"sim": part_sim, "time": part_time, "vp": part_vp, "grid": part_grid}[part](args)
+        if part == "sim" and args.sim_from:
+            if not args.revalidate:
+                raise SystemExit("--sim-from needs --revalidate (the stored runs are only chosen again)")
+            payload["sim_revalidated"] = part_sim_revalidate(args)
+        else:
+            payload[part] = {"sim": part_sim, "time": part_time, "vp": part_vp, "grid": part_grid}[part](args)
         write_json(args.name, payload)
+    if "sim_revalidated" in payload:
+        print_table([{"seed": r["seed"], "start": f"x{r['start_factor']:.3g}", "stored step": r["stored_best_step"],
+                      "kept step": r["best_step"], **{n: round(r["ratio_to_true"][n], 3) for n in NAMES}}
+                     for r in payload["sim_revalidated"]["runs"]],
+                    ["seed", "start", "stored step", "kept step"] + list(NAMES))
     if "sim" in payload:
         rows = [{"seed": r.get("seed", 0), "start": f"x{r['start_factor']:.3g}", "kept step": r.get("best_step"),
                  **{n: round(r["ratio_to_true"][n], 3) for n in NAMES}} for r in payload["sim"]["runs"]]
