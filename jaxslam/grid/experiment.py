@@ -180,6 +180,10 @@ def make_config(
         "matcher": "hill" if algorithm == "gmapping" else "ellipse",
         "correction": "npc" if algorithm == "srupf-gm-npc" else "pc",
         "sampling": "posterior" if algorithm == "srupf-gm-npc" else "prior",
+        # The constrained keyframe correction is SRUPF-GM's default; the GMapping-style
+        # filter keeps GMapping's own correction unless asked (measured over the
+        # robustness suite: see jaxslam.grid.gmapping).
+        "constrain_matches": algorithm != "gmapping",
     }
     base.update(overrides)
     return GridSlamConfig(particles, layout, num_beams, max_points, **base)

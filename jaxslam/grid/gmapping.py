@@ -7,7 +7,11 @@ Per particle :math:`i` and keyframe :math:`t` (``GridSlamProcessor::processScan`
 2. scan matching against the particle's own map from :math:`\tilde x^i_t`
    (hill climbing with step halving, :func:`jaxslam.grid.matching.hill_climb_match`);
    the corrected pose :math:`x^i_t` replaces the proposal when its score exceeds
-   ``min_score``;
+   ``min_score``. With ``config.constrain_matches`` (an option here, off in
+   :func:`jaxslam.grid.experiment.make_config`; not in GMapping) the correction
+   keeps the matched heading but moves the position only along the directions the
+   scan constrains (:func:`jaxslam.grid.tracking.constrained_shift`, as SRUPF-GM's
+   corrector, where it is the default, and the tracking);
 3. weight :math:`\log w^i \mathrel{+}= g \log p(z_t | x^i_t, m^i)`;
 4. the scan is integrated into the map at :math:`x^i_t`;
 5. selective resampling when :math:`N_{eff} < \text{threshold}\, N`.
@@ -43,7 +47,7 @@ from jaxslam.grid.types import (
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
-from jaxslam.grid.tracking import per_scan
+from jaxslam.grid.tracking import constrained_shift, per_scan
 from jaxslam.models.odometry import sample_gmapping
 
 
@@ -68,8 +72,11 @@ def correct_pose(
         read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     matcher = get_matcher(config.matcher)
-    best, _ = matcher(score_fn, pose, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
+    best, best_score = matcher(score_fn, pose, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
     count = jnp.maximum(jnp.sum(mask), 1).astype(pose.dtype)
+    if config.constrain_matches:
+        shift = constrained_shift(score_fn, best, pose, best_score, count, params)
+        best = jnp.concatenate([pose[:2] + shift, best[2:]])
     log_lik_best, score_best = scan_log_likelihood(
         read, best, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )

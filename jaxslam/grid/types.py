@@ -48,9 +48,13 @@ class GridSlamConfig:
         tracking: match every scan between keyframes against the best particle's
             map (:mod:`jaxslam.grid.tracking`); False moves the particles by the
             odometry alone between keyframes (GMapping).
-        constrain_matches: SRUPF-GM only: the keyframe's pose correction moves the
-            position only along the directions the scan constrains
+        constrain_matches: the keyframe's pose correction (SRUPF-GM's corrector,
+            the GMapping-style hill climb) moves the position only along the
+            directions the scan constrains
             (:func:`jaxslam.grid.tracking.constrained_shift`), as the tracking does.
+            :func:`jaxslam.grid.experiment.make_config` turns it on for SRUPF-GM and
+            off for the GMapping-style filter (GMapping's own correction; the
+            suite's measurement is in :mod:`jaxslam.grid.gmapping`).
     """
 
     num_particles: int

@@ -232,6 +232,44 @@ def test_keyframe_correction_moves_only_along_constrained_directions(sim):
         np.testing.assert_allclose(np.asarray(curved), np.asarray(free), atol=1e-9)
 
 
+def test_gmapping_correction_moves_only_along_constrained_directions(sim):
+    """``constrain_matches`` in the GMapping-style filter's correction
+    (:func:`jaxslam.grid.gmapping.correct_pose`): the hill climb's position change is
+    kept only along the directions the scan constrains. All directions flat: the
+    proposal's position with the matched heading; none flat: the unconstrained match,
+    which did move the position (so the test can fail). Off: GMapping's own
+    correction, the unconstrained match."""
+    from jaxslam.grid.filter import match_geometry, particle_reader
+    from jaxslam.grid.gmapping import correct_pose
+
+    with jax.enable_x64(True):
+        state, scans, params, config = _state_and_scans(sim)
+        config = dataclasses.replace(config, matcher="hill")
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        proposal = se2_compose(np.asarray(state.poses[0]), true_step + np.array([0.03, -0.02, 0.04]))
+
+        @functools.partial(jax.jit, static_argnums=2)
+        def correct(state, params, config):
+            local_points, mask = match_geometry(scans[3], params, config)
+            read = particle_reader(state, state.maps.tables[0], config)
+            return correct_pose(read, proposal, state.pose_sqrt_covs[0], local_points, mask, params, config)
+
+        off = dataclasses.replace(config, constrain_matches=False)
+        free, score, _ = correct(state, params, off)
+        assert float(score) > float(params.min_score)
+        assert np.hypot(*(np.asarray(free) - proposal)[:2]) > 1e-3
+        on = dataclasses.replace(config, constrain_matches=True)
+        flat = correct(state, params._replace(track_min_curvature=np.float64(1e9)), on)[0]
+        np.testing.assert_allclose(np.asarray(flat)[:2], proposal[:2], atol=1e-12)
+        np.testing.assert_allclose(float(flat[2]), float(free[2]), atol=1e-12)
+        curved = correct(state, params._replace(track_min_curvature=np.float64(-1e9)), on)[0]
+        np.testing.assert_allclose(np.asarray(curved), np.asarray(free), atol=1e-9)
+    # The defaults: on for SRUPF-GM, GMapping's own correction for the GMapping-style filter.
+    layout = config.layout
+    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).constrain_matches
+    assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).constrain_matches
+
+
 def test_keyframe_control_carries_the_tracked_noise_scale(sim):
     """The per-scan step hands the keyframe step the tracked motion with noise scale
     ``track_noise_scale`` (also after a refused match: the run is tracked), and 1, the
