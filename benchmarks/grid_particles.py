@@ -2,13 +2,16 @@
 number of particles (10 to 1000) and against the added odometry noise, plus the
 relations error (Kümmerle et al. 2009) against the number of particles, for
 SRUPF-GM (pc, npc) and the GMapping-style filter; GMapping C++ reference times
-(issue 4) are drawn for comparison.
+(issue 4) are drawn for comparison. Each point runs ``--seeds`` seeds (default 10,
+each a fresh process) and reports the relations error's mean, standard deviation and
+95% Student-t interval over them (:func:`jaxslam.metrics.stats.mean_ci`); the error
+figure shows the interval and every seed.
 
 Writes ``benchmarks/results/grid_particles_<dataset>.json`` and the figures
 ``grid_time_vs_particles_<dataset>.png``, ``grid_error_vs_particles_<dataset>.png``,
 ``grid_time_vs_noise_<dataset>.png``.
 
-    python benchmarks/grid_particles.py [--particles 10 30 50 100 300 1000] [--seeds 1]
+    python benchmarks/grid_particles.py [--particles 10 30 50 100 300 1000] [--seeds 10]
         [--noise-scales 0.5 1 2 4] [--skip-noise]
 """
 
@@ -25,6 +28,8 @@ from grid_common import (
     run_in_subprocess,
     save_json,
 )
+
+from jaxslam.metrics.stats import mean_ci
 
 ALGORITHMS = ("srupf-gm", "srupf-gm-npc", "gmapping")
 COLORS = {"srupf-gm": "tab:blue", "srupf-gm-npc": "tab:green", "gmapping": "tab:orange"}
@@ -56,6 +61,11 @@ def summarise(records):
         vals = [r[key] for r in ok if key in r]
         if vals:
             out[key] = float(np.mean(vals))
+    errors = [r["trans_err_mean_m"] for r in ok if "trans_err_mean_m" in r]
+    if errors:
+        stats = mean_ci(errors)  # over seeds: one run per point cannot tell a trend from seed noise
+        out.update(trans_err_seeds_m=errors, trans_err_seed_std_m=stats["std"],
+                   trans_err_ci_m=[stats["ci_low"], stats["ci_high"]])
     return out
 
 
@@ -64,7 +74,7 @@ def main() -> None:
     ap.add_argument("--dataset", default="intel")
     ap.add_argument("--particles", type=int, nargs="+", default=[10, 30, 50, 100, 300, 1000])
     ap.add_argument("--algorithms", nargs="+", default=list(ALGORITHMS))
-    ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--seeds", type=int, default=10, help="seeds 0..N-1 per point")
     ap.add_argument("--noise-scales", type=float, nargs="+", default=[0.5, 1.0, 2.0, 4.0])
     ap.add_argument("--noise-particles", type=int, default=30)
     ap.add_argument("--skip-noise", action="store_true")
@@ -129,6 +139,14 @@ def main() -> None:
             xs = [int(n) for n in rows if rows[n]["summary"].get("n_ok") and key in rows[n]["summary"]]
             ys = [rows[str(n)]["summary"][key] for n in xs]
             ax.plot(xs, ys, "o-", color=COLORS.get(algorithm), label=algorithm)
+            if key == "trans_err_mean_m":  # the spread over seeds: 95% interval and every seed
+                for x in xs:
+                    s = rows[str(x)]["summary"]
+                    lo, hi = s.get("trans_err_ci_m", [np.nan, np.nan])
+                    if np.isfinite(lo):
+                        ax.plot([x, x], [lo, hi], "-", color=COLORS.get(algorithm), lw=3, alpha=0.5)
+                    ax.plot([x] * len(s["trans_err_seeds_m"]), s["trans_err_seeds_m"], ".",
+                            color=COLORS.get(algorithm), alpha=0.4)
         if key == "wall_mean_s" and reference:
             ax.plot(list(reference), list(reference.values()), "s--", color="tab:red", label="GMapping C++")
         if log:
