@@ -87,7 +87,7 @@ def run_jaxslam(case: str, cache: Path | None, out: Path, timeout: float, tree: 
     compilations = summary.get("compilations") or {}  # an old checkout has no count
     row["compiled"] = compilations.get("compiled")
     row["cache_hits"] = compilations.get("cache_hits")
-    for key in ("trans_err_mean_m", "rot_err_mean_deg", "gps_mean_m", "keyframes", "steps"):
+    for key in ("trans_err_mean_m", "rot_err_mean_deg", "gps_mean_m", "keyframes", "steps", "log_cache"):
         if key in summary:
             row[key] = summary[key]
     row["load_average"] = [load_before, os.getloadavg()[0]]

@@ -131,10 +131,10 @@ def build_parser() -> argparse.ArgumentParser:
     bag.add_argument("--laser-mount", type=float, nargs=3, default=None, metavar=("X", "Y", "THETA"),
                      help="laser pose in the base frame (m, m, rad); default: from /tf_static")
     run.add_argument("--cache-dir", type=Path, default=None, metavar="DIR",
-                     help="JAX persistent compilation cache folder (default: $JAXSLAM_CACHE_DIR, else "
-                          "$XDG_CACHE_HOME/jaxslam/jax or ~/.cache/jaxslam/jax)")
+                     help="JAX persistent compilation cache folder, also holding parsed CARMEN logs (default: "
+                          "$JAXSLAM_CACHE_DIR, else $XDG_CACHE_HOME/jaxslam/jax or ~/.cache/jaxslam/jax)")
     run.add_argument("--no-cache", action="store_true",
-                     help="do not use the compilation cache (same as JAXSLAM_CACHE_DIR=off)")
+                     help="do not use the compilation cache nor the parsed-log cache (same as JAXSLAM_CACHE_DIR=off)")
 
     ev = sub.add_parser("evaluate", help="score a TUM trajectory (relations metric or GPS error)",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)

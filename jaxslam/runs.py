@@ -141,17 +141,29 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
 
 def _load_log(info, path, seed, bag, max_range):
-    """The laser log of a registry entry, a ROS bag or a CARMEN log path."""
+    """The laser log of a registry entry, a ROS bag or a CARMEN log path, and how the
+    log cache served it (:mod:`jaxslam.datasets.log_cache`; CARMEN logs only, in the
+    compilation-cache folder when that is on)."""
     if path is not None and _is_bag(path):
         from jaxslam.datasets.rosbag import load_rosbag
 
-        return load_rosbag(path, **(bag or {}))
+        return load_rosbag(path, **(bag or {})), "off"
     options = {"max_range": max_range} if max_range is not None else {}
-    if info is not None:
-        return info.load(seed=seed, **options)
-    from jaxslam.datasets.carmen import load_carmen
+    if info is not None and info.loader != "carmen":
+        return info.load(seed=seed, **options), "off"
+    from jaxslam.datasets.log_cache import load_carmen_cached
 
-    return load_carmen(path, **options)
+    if info is not None:
+        path, options = info.paths()[0], {**info.options, **options}
+    return load_carmen_cached(path, _log_cache_folder(), **options)
+
+
+def _log_cache_folder() -> str | None:
+    """The compilation-cache folder (the log cache lives beside the compiled programs),
+    or None when that cache is off."""
+    import jax
+
+    return jax.config.jax_compilation_cache_dir
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
@@ -163,7 +175,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
 
     name = info.name if info is not None else str(path)
     loading = time.perf_counter()
-    log = _load_log(info, path, seed, bag, max_range)
+    log, log_cache = _load_log(info, path, seed, bag, max_range)
     load_s = time.perf_counter() - loading
     live = None
     if viz is not None:
@@ -186,7 +198,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name,
         "finite": bool(np.all(np.isfinite(result.trajectory))),
-        "log_stats": getattr(log, "stats", {}), "load_s": load_s,
+        "log_stats": getattr(log, "stats", {}), "load_s": load_s, "log_cache": log_cache,
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
         "odometry_repair": getattr(log, "odometry_repair", {}),
     }

@@ -97,7 +97,7 @@ def run(args) -> dict[str, Any]:
             from jaxslam.calibrate.grid import calibrate_grid
             from jaxslam.runs import _load_log
 
-            log = _load_log(info, path, args.seed, None, None)
+            log, _ = _load_log(info, path, args.seed, None, None)
             out.mkdir(parents=True, exist_ok=True)
             result = calibrate_grid(log, samples=args.samples, **options)
     name = info.name if info is not None else str(path)

@@ -55,3 +55,26 @@ def test_calibrate_then_run_with_params(tmp_path):
                  "--no-progress", "--params", str(out / "calibration.json")]) == 0
     summary = json.loads((run_out / "summary.json").read_text())
     assert summary["overrides"] == payload["params_after"]
+
+
+def test_grid_calibration_is_given_the_log(tmp_path, monkeypatch):
+    """The grid branch reads the CARMEN log (through the runs' loader) and hands the
+    log itself to calibrate_grid (stopped there: a calibration is a slow test)."""
+    import jaxslam.calibrate.grid as grid_calibration
+    from jaxslam.datasets.carmen import CarmenLog
+    from tests.datasets.test_carmen import GOOD, _write
+
+    class Stop(Exception):
+        pass
+
+    seen = {}
+
+    def fake(log, **options):
+        seen["log"] = log
+        raise Stop
+
+    monkeypatch.setattr(grid_calibration, "calibrate_grid", fake)
+    log_path = _write(tmp_path, GOOD)
+    with pytest.raises(Stop):
+        main(["calibrate", "--algorithm", "srupf-gm", "--dataset", str(log_path), "--out", str(tmp_path / "cal")])
+    assert isinstance(seen["log"], CarmenLog) and seen["log"].num_scans == 2
