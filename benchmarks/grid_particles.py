@@ -12,7 +12,7 @@ Writes ``benchmarks/results/grid_particles_<dataset>.json`` and the figures
 ``grid_time_vs_noise_<dataset>.png``.
 
     python benchmarks/grid_particles.py [--particles 10 30 50 100 300 1000] [--seeds 10]
-        [--noise-scales 0.5 1 2 4] [--skip-noise]
+        [--noise-scales 0.5 1 2 4] [--skip-noise] [--name NAME]
 """
 
 from __future__ import annotations
@@ -78,7 +78,24 @@ def main() -> None:
     ap.add_argument("--noise-scales", type=float, nargs="+", default=[0.5, 1.0, 2.0, 4.0])
     ap.add_argument("--noise-particles", type=int, default=30)
     ap.add_argument("--skip-noise", action="store_true")
+    ap.add_argument("--name", default=None,
+                    help="results grid_particles_NAME.json and figures *_NAME.png (default: the dataset)")
+    ap.add_argument("--replot", nargs="+", default=None, metavar="NAME",
+                    help="only draw the figures (named after --name) from grid_particles_NAME.json files, "
+                         "their sweeps merged (e.g. two algorithms run separately)")
     args = ap.parse_args()
+    name = args.name or args.dataset
+    if args.replot:
+        import json
+
+        sweep, noise, reference = {}, {}, {}
+        for other in args.replot:
+            payload = json.loads((RESULTS / f"grid_particles_{other}.json").read_text())
+            sweep.update(payload["sweep"])
+            noise.update(payload.get("noise_sweep") or {})
+            reference = payload.get("gmapping_cpp_reference_s") or reference
+        plot(sweep, noise, reference, args.dataset, name, args.noise_particles)
+        return
 
     # Built before any run, so that a problem here cannot throw away a long sweep.
     noise_params = {} if args.skip_noise else {
@@ -97,7 +114,7 @@ def main() -> None:
                 if s.get("n_ok"):
                     speedups[str(n)] = t / s["wall_mean_s"]
             payload.setdefault("speedup_vs_gmapping_cpp", {})[algorithm] = speedups
-        save_json(RESULTS / f"grid_particles_{args.dataset}.json", payload)
+        save_json(RESULTS / f"grid_particles_{name}.json", payload)
 
     sweep = {}
     for algorithm in args.algorithms:
@@ -111,7 +128,7 @@ def main() -> None:
                                                                   "rot_err_mean_deg", "error")}, flush=True)
                 records.append(rec)
             sweep[algorithm][str(n)] = {"summary": summarise(records), "runs": records}
-    save(sweep, {})
+            save(sweep, {})  # after every point: a long sweep stopped early keeps what it ran
 
     noise = {}
     if not args.skip_noise:
@@ -128,6 +145,13 @@ def main() -> None:
     if noise:
         save(sweep, noise)
 
+    plot(sweep, noise, reference, args.dataset, name, args.noise_particles)
+    print("wrote", RESULTS / f"grid_particles_{name}.json")
+
+
+def plot(sweep: dict, noise: dict, reference: dict, dataset: str, name: str, noise_particles: int) -> None:
+    """The figures of a sweep: time and relations error against particles (every seed
+    and the 95% interval), and time against the noise scale."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -136,7 +160,7 @@ def main() -> None:
     def plot_vs_particles(key, ylabel, fname, log=True):
         fig, ax = plt.subplots(figsize=(6, 4))
         for algorithm, rows in sweep.items():
-            xs = [int(n) for n in rows if rows[n]["summary"].get("n_ok") and key in rows[n]["summary"]]
+            xs = sorted(int(n) for n in rows if rows[n]["summary"].get("n_ok") and key in rows[n]["summary"])
             ys = [rows[str(n)]["summary"][key] for n in xs]
             ax.plot(xs, ys, "o-", color=COLORS.get(algorithm), label=algorithm)
             if key == "trans_err_mean_m":  # the spread over seeds: 95% interval and every seed
@@ -148,21 +172,23 @@ def main() -> None:
                     ax.plot([x] * len(s["trans_err_seeds_m"]), s["trans_err_seeds_m"], ".",
                             color=COLORS.get(algorithm), alpha=0.4)
         if key == "wall_mean_s" and reference:
-            ax.plot(list(reference), list(reference.values()), "s--", color="tab:red", label="GMapping C++")
+            counts = sorted(reference, key=int)  # JSON keys are strings
+            ax.plot([int(n) for n in counts], [reference[n] for n in counts], "s--", color="tab:red",
+                    label="GMapping C++ (reference, README machine)")
+        ax.set_xscale("log")
         if log:
-            ax.set_xscale("log")
             ax.set_yscale("log")
         ax.set_xlabel("particles")
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
-        ax.set_title(args.dataset)
+        ax.set_title(dataset)
         fig.tight_layout()
         fig.savefig(RESULTS / fname, dpi=120)
 
-    plot_vs_particles("wall_mean_s", "run time (s)", f"grid_time_vs_particles_{args.dataset}.png")
+    plot_vs_particles("wall_mean_s", "run time (s)", f"grid_time_vs_particles_{name}.png")
     plot_vs_particles("trans_err_mean_m", "relations error, translation (m)",
-                      f"grid_error_vs_particles_{args.dataset}.png", log=False)
+                      f"grid_error_vs_particles_{name}.png", log=False)
     if noise:
         fig, ax = plt.subplots(figsize=(6, 4))
         for algorithm, rows in noise.items():
@@ -170,13 +196,12 @@ def main() -> None:
             ys = [rows[str(s)]["summary"]["wall_mean_s"] for s in rows if rows[s]["summary"].get("n_ok")]
             ax.plot(xs, ys, "o-", color=COLORS.get(algorithm), label=algorithm)
         ax.set_xlabel("added noise (x default)")
-        ax.set_ylabel(f"run time (s), {args.noise_particles} particles")
+        ax.set_ylabel(f"run time (s), {noise_particles} particles")
         ax.set_xscale("log")
         ax.grid(True, alpha=0.3)
         ax.legend()
         fig.tight_layout()
-        fig.savefig(RESULTS / f"grid_time_vs_noise_{args.dataset}.png", dpi=120)
-    print("wrote", RESULTS / f"grid_particles_{args.dataset}.json")
+        fig.savefig(RESULTS / f"grid_time_vs_noise_{name}.png", dpi=120)
 
 
 if __name__ == "__main__":
