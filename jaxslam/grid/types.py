@@ -119,7 +119,10 @@ class GridSlamParams(NamedTuple):
     position correction is kept only along directions where the score's curvature
     (information, per m^2) reaches this (:func:`jaxslam.grid.tracking.constrained_shift`);
     ``track_noise_scale``: the proposals' motion noise with tracking, as a fraction of
-    the odometry model's (:func:`jaxslam.grid.tracking.tracked_noise_scale`).
+    the odometry model's (:func:`jaxslam.grid.tracking.tracked_noise_scale`);
+    ``track_turn`` (rad): the tracking match also scores its guess turned by this much
+    either way and climbs again from the better one when it beats the converged match
+    (0: never; a turn the odometry missed, see :func:`jaxslam.grid.tracking.track`).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -152,6 +155,7 @@ class GridSlamParams(NamedTuple):
     track_min_score: Array
     track_min_curvature: Array
     track_noise_scale: Array
+    track_turn: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -212,6 +216,7 @@ def default_params(
         "track_min_score": 0.1,
         "track_min_curvature": 20.0,
         "track_noise_scale": 0.2,
+        "track_turn": 0.15,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,
