@@ -135,20 +135,26 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
         read, local_points, mask, params.laser_offset, config.layout, score_model(params),
         config.score_kernel, config.free_check,
     )
-    matched, score = hill_climb_match(score_fn, guess, None, params, config.match_iterations)
     # A turn the odometry missed (FR079's doorways: up to 10 deg per scan) can lie beyond
     # the hill climb's reach. If the guess turned by +-track_turn already scores above
     # the converged match, that match is stuck: climb again from the better turned start.
+    # (Two passes of one climb, the second under a cond: the program holds the climb once.)
     turns = jnp.asarray([1.0, -1.0], dtype) * jnp.asarray(params.track_turn, dtype)
     turned = jnp.broadcast_to(guess, (2, 3)).at[:, 2].add(turns)
     turned = turned.at[:, 2].set(se2.wrap_angle(turned[:, 2]))
     turned_scores = score_fn(turned)
-    best_turn = jnp.argmax(turned_scores)
-    matched, score = jax.lax.cond(
-        turned_scores[best_turn] > score,
-        lambda: hill_climb_match(score_fn, turned[best_turn], None, params, config.match_iterations),
-        lambda: (matched, score),
-    )
+    retry = turned[jnp.argmax(turned_scores)]
+
+    def attempt(i, carry):
+        best, best_score = carry
+        start = jnp.where(i == 0, guess, retry)
+        return jax.lax.cond(
+            (i == 0) | (jnp.max(turned_scores) > best_score),
+            lambda: hill_climb_match(score_fn, start, None, params, config.match_iterations),
+            lambda: (best, best_score),
+        )
+
+    matched, score = jax.lax.fori_loop(0, 2, attempt, (guess, jnp.full((), -jnp.inf, dtype)))
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
     score = score / count
     shift = constrained_shift(score_fn, matched, guess, score * count, count, params)
