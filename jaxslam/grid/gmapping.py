@@ -47,7 +47,7 @@ from jaxslam.grid.types import (
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
-from jaxslam.grid.tracking import constrained_shift, per_scan
+from jaxslam.grid.tracking import constrained_pose, per_scan
 from jaxslam.models.odometry import sample_gmapping
 
 
@@ -75,8 +75,7 @@ def correct_pose(
     best, best_score = matcher(score_fn, pose, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
     count = jnp.maximum(jnp.sum(mask), 1).astype(pose.dtype)
     if config.constrain_matches:
-        shift = constrained_shift(score_fn, best, pose, best_score, count, params)
-        best = jnp.concatenate([pose[:2] + shift, best[2:]])
+        best = constrained_pose(score_fn, best, pose, best_score, count, params)
     log_lik_best, score_best = scan_log_likelihood(
         read, best, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )

@@ -92,7 +92,7 @@ from jaxslam.grid.types import (
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import get_matcher
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
-from jaxslam.grid.tracking import constrained_shift, per_scan
+from jaxslam.grid.tracking import constrained_pose, per_scan
 from jaxslam.models.odometry import (
     Prediction,
     motion_noise_sqrt,
@@ -195,8 +195,7 @@ def particle_update(
             prior_mean=prediction.mean,
         )
         if config.constrain_matches:
-            shift = constrained_shift(score_fn, best, start, best_score, count, params)
-            best = jnp.concatenate([start[:2] + shift, best[2:]])
+            best = constrained_pose(score_fn, best, start, best_score, count, params)
         accept = best_score / count > params.min_score
         nu = jnp.where(accept, best, start)
     elif config.correction == "npc":

@@ -157,11 +157,19 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     matched, score = jax.lax.fori_loop(0, 2, attempt, (guess, jnp.full((), -jnp.inf, dtype)))
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
     score = score / count
-    shift = constrained_shift(score_fn, matched, guess, score * count, count, params)
-    pose = jnp.concatenate([guess[:2] + shift, matched[2:]])
+    pose = constrained_pose(score_fn, matched, guess, score * count, count, params)
     accepted = score > params.track_min_score
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
     return motion, score, accepted
+
+
+def constrained_pose(score_fn, matched: Array, start: Array, score: Array, count: Array,
+                     params: GridSlamParams) -> Array:
+    """``matched`` with its heading, and of its position correction from ``start`` only
+    the part the scan constrains (:func:`constrained_shift`): the tracking's pose and
+    the keyframe correctors' with ``config.constrain_matches``."""
+    shift = constrained_shift(score_fn, matched, start, score, count, params)
+    return jnp.concatenate([start[:2] + shift, matched[2:]])
 
 
 def constrained_shift(score_fn, matched: Array, guess: Array, score: Array, count: Array,
@@ -295,4 +303,7 @@ def scan_trajectory(first_pose: np.ndarray, keyframe_flags: np.ndarray, keyframe
     return keyframes, se2_compose(anchors[slot], motion)
 
 
-__all__ = ["is_keyframe", "per_scan", "scan_trajectory", "track", "tracked_noise_scale"]
+__all__ = [
+    "constrained_pose", "constrained_shift", "is_keyframe", "per_scan", "scan_trajectory", "track",
+    "tracked_noise_scale",
+]
