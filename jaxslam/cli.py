@@ -7,9 +7,11 @@ dataset names the dataset, every place searched and how to set ``JAXSLAM_DATA``.
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import os
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -292,5 +294,30 @@ def main(argv: list[str] | None = None) -> int:
         parser.exit(130, "interrupted\n")
 
 
+def console_main() -> None:
+    """The ``jaxslam`` command: :func:`main`, then a quick exit.
+
+    Python's finalization after a run (tearing down some 1200 modules, JAX's compiled
+    programs and XLA's CPU client) took 0.35-0.45 s, a tenth of a warm Intel run's
+    overhead. When :func:`main` returns, every output file has been written and closed,
+    so the exit handlers (:mod:`atexit`: Rerun's flush, logging) run, the standard
+    streams are flushed and the process ends with :func:`os._exit`. With a non-daemon
+    thread still alive, or without CPython's ``atexit._run_exitfuncs``, it exits the
+    usual way. Errors (``SystemExit`` from the parser, tracebacks) take the usual way.
+    """
+    code = main()
+    run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
+    others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
+    if run_exit_handlers is None or others:
+        sys.exit(code)
+    run_exit_handlers()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code or 0)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console_main()

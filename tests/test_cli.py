@@ -140,6 +140,34 @@ def test_console_script_entry_point():
     assert np.any(["sim-laser" in line for line in result.stdout.splitlines()])
 
 
+def test_console_script_exits_quickly_after_running_exit_handlers(tmp_path):
+    """``console_main`` ends with ``os._exit``: the exit handlers must still run, the
+    streams be flushed, and the command's exit status come through."""
+    marker = tmp_path / "atexit-ran"
+    program = (
+        "import atexit, sys\n"
+        f"atexit.register(lambda: open({str(marker)!r}, 'w').write('yes'))\n"
+        "sys.argv = ['jaxslam', 'datasets']\n"
+        "from jaxslam.cli import console_main\n"
+        "console_main()\n"
+        "print('not reached')\n"
+    )
+    result = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "sim-laser" in result.stdout and "not reached" not in result.stdout
+    assert marker.read_text() == "yes"
+    failed = subprocess.run([sys.executable, "-m", "jaxslam.cli", "evaluate", "--relations", "intel",
+                             "--trajectory", str(tmp_path / "none.tum")], capture_output=True, text=True)
+    assert failed.returncode == 2 and "none.tum" in failed.stderr
+
+
+def test_installed_command_is_the_quick_exit_entry_point():
+    from importlib.metadata import entry_points
+
+    (script,) = [e for e in entry_points(group="console_scripts") if e.name == "jaxslam"]
+    assert script.value == "jaxslam.cli:console_main"
+
+
 def test_interrupted_run_resumes_to_identical_outputs(tmp_path, monkeypatch, capsys):
     from jaxslam import checkpoint as ckpt
 

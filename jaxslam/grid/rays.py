@@ -104,8 +104,13 @@ def required_points(lengths, beam_valid, resolution: float) -> int:
     sizing ``max_points``."""
     import numpy as np
 
-    lengths = np.asarray(lengths, np.float64)
-    per = np.where(np.asarray(beam_valid), np.floor(lengths / resolution).astype(np.int64) + 2, 0)
+    # In place on one float64 copy (a whole log is millions of beams); the sums of
+    # whole numbers are exact in float64.
+    per = np.array(lengths, np.float64)
+    per /= resolution
+    np.floor(per, out=per)
+    per += 2.0
+    np.copyto(per, 0.0, where=~np.asarray(beam_valid, bool))  # also an invalid NaN
     return int(per.sum(-1).max()) if per.ndim > 1 else int(per.sum())
 
 

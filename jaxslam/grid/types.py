@@ -241,7 +241,10 @@ def default_params(
     values.update(overrides)
     if values["weight_gain"] is None:
         values["weight_gain"] = 1.0 / 90.0
-    return GridSlamParams(**{k: jnp.asarray(v, dtype) for k, v in values.items()})
+    # NumPy leaves: the jitted programs take them as they are, whereas ``jnp.asarray``
+    # runs (and compiles or loads) a conversion program per field, eagerly.
+    real = np.dtype(dtype)
+    return GridSlamParams(**{k: np.asarray(v, real) for k, v in values.items()})
 
 
 class GridSlamState(NamedTuple):
