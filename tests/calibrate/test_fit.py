@@ -114,12 +114,15 @@ def test_validation_scores_with_the_weights_of_the_filter_to_be_run():
             jnp.asarray(seq.obs_mask, bool), jnp.zeros(3, jnp.float32))
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
     theta = jnp.asarray(log_noise_of(params_for(seq), names), jnp.float32) - 0.5
+    # The reference: one filter run per key, jitted once per config (called eagerly,
+    # its scan would be traced and compiled again for every key).
+    reference = jax.jit(lambda k, p, c: log_likelihoods(k, p, c, *data, checkpoint=False), static_argnums=2)
     scores = {}
     for lik in ("gated", "mixture"):
         scores[lik] = validation_score(cfg, names, params, data, 16, 6, lik)(keys, theta)
         c = dataclasses.replace(cfg, num_particles=6, likelihood=lik)
-        expected = [float(np.mean(np.asarray(log_likelihoods(k, with_log_noise(params, theta, names), c, *data,
-                                                                checkpoint=False))[16:])) for k in keys]
+        expected = [float(np.mean(np.asarray(reference(k, with_log_noise(params, theta, names), c))[16:]))
+                    for k in keys]
         np.testing.assert_allclose(scores[lik], expected, rtol=1e-5, atol=1e-5)
     assert not np.allclose(scores["gated"], scores["mixture"])
     with pytest.raises(ValueError, match="validation likelihood"):
