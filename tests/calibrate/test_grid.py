@@ -94,18 +94,24 @@ def test_predictive_likelihood_matches_a_direct_computation(setup):
         sqrt = jnp.broadcast_to(jnp.diag(jnp.array([0.05, 0.04, 0.02])), (PARTICLES, 3, 3))
         motion = jnp.array([0.4, 0.02, 0.05])
         scan = jax.tree_util.tree_map(lambda x: x[4], inputs.observations)
-        total, prediction = G.predictive_log_likelihood(key, state, sqrt, motion, scan, params, config, samples=3)
+        # Both sides jitted (as the library runs them), so that they are not run op by op.
+        estimate = jax.jit(lambda *a: G.predictive_log_likelihood(*a, params, config, samples=3))
+        total, prediction = estimate(key, state, sqrt, motion, scan)
         eps = np.asarray(jax.random.normal(key, (PARTICLES, 3, 3), jnp.float64))
         points, mask = match_geometry(scan, params, config)
+
+        @jax.jit
+        def likelihood(state, table, pose):
+            read = particle_reader(state, table, config)
+            return scan_log_likelihood(read, pose, points, mask, params.laser_offset, config.layout,
+                                       score_model(params), config.score_kernel, config.free_check)[0]
+
         per_particle = []
         for m in range(PARTICLES):
-            read = particle_reader(state, state.maps.tables[m], config)
             values = []
             for k in range(3):
                 pose = np.asarray(prediction.mean[m]) + np.asarray(prediction.sqrt_cov[m]) @ eps[m, k]
-                lik, _ = scan_log_likelihood(read, jnp.asarray(pose), points, mask, params.laser_offset,
-                                             config.layout, score_model(params), config.score_kernel,
-                                             config.free_check)
+                lik = likelihood(state, state.maps.tables[m], jnp.asarray(pose))
                 values.append(float(params.weight_gain) * float(lik))
             per_particle.append(float(logsumexp(np.array(values))) - np.log(3))
         expected = float(logsumexp(np.log(weights) + np.array(per_particle)))

@@ -5,6 +5,7 @@ observation it is the paper's gated weight."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -68,9 +69,13 @@ def test_log_density_matches_the_dense_ukf():
     table = _table(LANDMARKS)
     z = _observations()
     mask = np.array([True, True, True, False])
-    pose = jnp.asarray(POSE)
-    local, valid, _ = local_slots(table, pose[:2], pose[2], PARAMS.max_range, math.pi / 2, 5.0, 6)
-    out = associate(pose, jnp.asarray(POSE_SQRT), table, local, valid, jnp.asarray(z), jnp.asarray(mask), PARAMS, 3)
+
+    @jax.jit  # one program, not op by op
+    def gather_and_associate(pose, table, z, mask):
+        local, valid, _ = local_slots(table, pose[:2], pose[2], PARAMS.max_range, math.pi / 2, 5.0, 6)
+        return associate(pose, jnp.asarray(POSE_SQRT), table, local, valid, z, mask, PARAMS, 3)
+
+    out = gather_and_associate(jnp.asarray(POSE), table, jnp.asarray(z), jnp.asarray(mask))
     assert bool(out.matched[0]) and not bool(out.matched[1])
     for j in range(3):
         np.testing.assert_allclose(float(out.log_density[j]), _reference_log_density(LANDMARKS, z[j]), rtol=1e-9,
@@ -78,6 +83,7 @@ def test_log_density_matches_the_dense_ukf():
     assert float(out.log_density[3]) == -np.inf
 
 
+@functools.partial(jax.jit, static_argnums=4)  # one program per likelihood and shape, not op by op
 def _step(table, z, mask, params, likelihood):
     config = Config(num_particles=1, capacity=8, local_size=6, candidates=3, likelihood=likelihood)
     controls = jnp.zeros((1, 3))  # dt = 0: the prediction keeps the pose and its factor
