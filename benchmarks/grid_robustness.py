@@ -125,7 +125,9 @@ def worker(spec: dict) -> dict:
         paths = save_map(tmp, result.map_log_odds, result.resolution, result.origin, trajectory=result.keyframe_poses)
         Path(spec["map_png"]).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(paths["png"], spec["map_png"])
-        record["map_png"] = spec["map_png"]
+        png = Path(spec["map_png"]).resolve()
+        # the repository path, so that the JSON stays valid in any checkout
+        record["map_png"] = str(png.relative_to(ROOT)) if png.is_relative_to(ROOT) else str(png)
     return record
 
 
