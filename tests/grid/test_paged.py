@@ -199,12 +199,18 @@ def growing_run(sim_log):
 def test_growing_run_equals_run_with_large_layout(sim_log, growing_run):
     """A run that starts with a small pool and table (and grows both) gives the same
     trajectory and map as one that starts large enough."""
-    # Started with the grown run's final layout (table tiles -5..7 x -5..2, 32 slots):
-    # no growth, and the same compiled program as the grown run's last stretch.
-    large = _run(sim_log, bounds=(-14.0, -14.0, 24.0, 8.0), pool_slots=32)
+    # Started with the grown run's final layout (a box over the centres of its first and
+    # last table tiles, its pool size): no growth, and the same compiled program as the
+    # grown run's last stretch.
+    grown = growing_run.config.layout
+    tm = grown.tile_metres
+    x0 = grown.origin_x + (grown.table_x0 + 0.5) * tm
+    y0 = grown.origin_y + (grown.table_y0 + 0.5) * tm
+    box = (x0, y0, x0 + (grown.table_width - 1) * tm, y0 + (grown.table_height - 1) * tm)
+    large = _run(sim_log, bounds=box, pool_slots=grown.slots)
     grew = {g["grew"] for g in growing_run.growths}
     assert grew == {"pool", "page table"} and large.summary()["map_growths"] == 0
-    assert large.config.layout == growing_run.config.layout
+    assert large.config.layout == grown
     np.testing.assert_array_equal(growing_run.trajectory, large.trajectory)
     np.testing.assert_array_equal(growing_run.map_log_odds, large.map_log_odds)
     assert growing_run.origin == large.origin
