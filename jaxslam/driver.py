@@ -89,10 +89,11 @@ def scan_runner(step_fn):
 
 
 @functools.lru_cache(maxsize=32)
-def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None):
+def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None, compiler_options: tuple = ()):
     """The jitted chunk runner of ``step_fn`` under ``config`` (cached: one per static
     config). Its carry is ``(state, params)``, its inputs ``(key, control, observation)``
-    per step, its outputs ``summary(info)`` (``info`` itself by default)."""
+    per step, its outputs ``summary(info)`` (``info`` itself by default);
+    ``compiler_options``: XLA's, as ``(name, value)`` pairs (:mod:`jaxslam.compiler`)."""
 
     def body(carry, x):
         state, params = carry
@@ -100,7 +101,9 @@ def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None):
         state, info = step_fn(key, state, control, observation, params, config)
         return (state, params), info if summary is None else summary(info)
 
-    return make_chunk_runner(body, tag=runner_tag(step_fn, config, summary, donate=True))
+    return make_chunk_runner(
+        body, tag=runner_tag(step_fn, config, summary, donate=True), compiler_options=dict(compiler_options)
+    )
 
 
 def best_particle(state) -> Array:

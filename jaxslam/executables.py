@@ -165,9 +165,12 @@ def _compile(runner, tag, path: Path, args, leaves, in_tree):
     loaded = exported is not None
     if not loaded:
         shapes = {}
+        # The jitted runner's own function: JAX refuses a nested jit that carries
+        # compiler options (jaxslam.compiler), and the program is the same.
+        function = getattr(runner, "__wrapped__", runner)
 
         def flat(*flat_args):
-            outputs = runner(*jax.tree_util.tree_unflatten(in_tree, flat_args))
+            outputs = function(*jax.tree_util.tree_unflatten(in_tree, flat_args))
             flat_outputs, shapes["out_tree"] = jax.tree_util.tree_flatten(outputs)
             return flat_outputs
 
@@ -181,7 +184,8 @@ def _compile(runner, tag, path: Path, args, leaves, in_tree):
             return runner.lower(*args).compile(), False
     donate = tuple(range(len(jax.tree_util.tree_leaves(args[0])))) if tag[-1] else ()
     try:
-        compiled = jax.jit(exported.call, donate_argnums=donate).lower(*leaves).compile()
+        options = getattr(runner, "jaxslam_compiler_options", None) or None
+        compiled = jax.jit(exported.call, donate_argnums=donate, compiler_options=options).lower(*leaves).compile()
     except Exception:  # noqa: BLE001 - a stored program that does not fit is only a miss
         if not loaded:
             raise

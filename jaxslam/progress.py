@@ -62,12 +62,16 @@ def _tree_pad(xs, length: int, total: int):
     return jax.tree_util.tree_map(pad, xs)
 
 
-def make_chunk_runner(step_fn: StepFn, donate: bool = True, tag: tuple | None = None):
+def make_chunk_runner(
+    step_fn: StepFn, donate: bool = True, tag: tuple | None = None, compiler_options: dict | None = None
+):
     """A jitted ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk.
 
     ``tag`` (from :func:`jaxslam.executables.runner_tag`) names everything besides the
     arguments that determines the program; with it the compiled runner is kept on disk
-    next to the compilation cache (:mod:`jaxslam.executables`)."""
+    next to the compilation cache (:mod:`jaxslam.executables`). ``compiler_options``
+    are XLA's (:mod:`jaxslam.compiler`), kept on the runner as
+    ``jaxslam_compiler_options`` for the program loaded from disk."""
 
     # Jitted so that it is traced once: ``eval_shape`` below and the ``cond`` branch
     # reuse the same trace (the step is the bulk of the tracing time of a run).
@@ -87,8 +91,9 @@ def make_chunk_runner(step_fn: StepFn, donate: bool = True, tag: tuple | None = 
 
         return jax.lax.scan(body, carry, (xs_chunk, valid))
 
-    runner = jax.jit(run_chunk, donate_argnums=(0,) if donate else ())
+    runner = jax.jit(run_chunk, donate_argnums=(0,) if donate else (), compiler_options=compiler_options or None)
     runner.jaxslam_tag = tag
+    runner.jaxslam_compiler_options = dict(compiler_options or {})
     return runner
 
 

@@ -165,27 +165,33 @@ def carry():
 
 xs = (jax.random.split(jax.random.key(5), 8), jnp.tile(jnp.array([0.1, 0.0, 0.02], jnp.float32), (8, 1)))
 valid = jnp.arange(8) < 6
-runner = make_chunk_runner(step, tag=("test-export", "v1", True))
+# argv[2] "options": the runner carries jaxslam's XLA options (as the grid runners do)
+from jaxslam.compiler import OPTIONS
+options = OPTIONS if sys.argv[2:] == ["options"] else None
+runner = make_chunk_runner(step, tag=("test-export", "v1", True), compiler_options=options)
 compiled, loaded = compile_runner(runner, carry(), xs, valid)
 (poses, total), means = compiled(carry(), xs, valid)
-(poses_direct, total_direct), means_direct = make_chunk_runner(step)(carry(), xs, valid)
+(poses_direct, total_direct), means_direct = make_chunk_runner(step, compiler_options=options)(carry(), xs, valid)
 print(json.dumps({"loaded": loaded, "entry": str(entry_path(__import__("pathlib").Path(sys.argv[1]), runner.jaxslam_tag, (carry(), xs, valid))),
                   "result": [poses.tobytes().hex(), total.tobytes().hex(), means.tobytes().hex()],
                   "direct": [poses_direct.tobytes().hex(), total_direct.tobytes().hex(), means_direct.tobytes().hex()]}))
 """
 
 
-def test_exported_chunk_runner_is_stored_loaded_and_bit_identical(tmp_path):
+@pytest.mark.parametrize("options", ["none", "options"])
+def test_exported_chunk_runner_is_stored_loaded_and_bit_identical(tmp_path, options):
     """Cold: stored, not loaded; warm: loaded from disk; an unreadable entry is a miss
-    and is replaced; every time the result equals the directly jitted runner's."""
+    and is replaced; every time the result equals the directly jitted runner's. Also
+    for a runner with XLA compiler options (jaxslam.compiler), which JAX refuses on a
+    nested jit: the export traces the runner's function instead."""
     cache = tmp_path / "cache"
     runs = []
     for _ in range(2):
-        runs.append(_run_program(EXPORT_PROGRAM, [str(cache)]))
+        runs.append(_run_program(EXPORT_PROGRAM, [str(cache), options]))
     entry = Path(runs[0]["entry"])
     assert entry.parent == cache / "exports" and entry.exists()
     entry.write_bytes(b"truncated")
-    runs.append(_run_program(EXPORT_PROGRAM, [str(cache)]))
+    runs.append(_run_program(EXPORT_PROGRAM, [str(cache), options]))
     assert [run["loaded"] for run in runs] == [False, True, False]
     assert entry.read_bytes() != b"truncated"
     for run in runs:

@@ -137,7 +137,9 @@ def test_grid_cli_path_compiles_once_per_config(sim_log, algorithm):
                                                                "resample_threshold": 0.3, "usable_range": 12.0}, **kw)
     assert second.config == first.config
     assert grid_driver.chunk_runner(GRID_STEPS[algorithm], second.config) is runner
-    assert runner is driver.chunk_runner(GRID_STEPS[algorithm], first.config, grid_driver.summarise)
+    # the shared driver's runner, with the grid programs' XLA options (jaxslam.compiler)
+    assert runner is driver.chunk_runner(GRID_STEPS[algorithm], first.config, grid_driver.summarise,
+                                         grid_driver.compiler_options())
     assert runner._cache_size() == compiled
     assert not np.array_equal(first.trajectory, second.trajectory)
     for info in (first.info, second.info):

@@ -77,6 +77,7 @@ from jax import Array
 from jax.scipy.special import logsumexp
 
 from jaxslam.core import se2
+from jaxslam.compiler import jit
 from jaxslam.core.resampling import normalize_log_weights
 from jaxslam.driver import step_keys
 from jaxslam.grid import srupf
@@ -282,8 +283,8 @@ def programs(config: GridSlamConfig, names: tuple[str, ...], samples: int):
 
         gradient = jax.vmap(jax.value_and_grad(mean), (None, 0, None, None))
         _PROGRAMS[(config, names, samples)] = (
-            jax.jit(lambda keys, th, params, inputs: gradient(th, keys, params, inputs)),
-            jax.jit(jax.vmap(increments, (0, None, None, None))),
+            jit(lambda keys, th, params, inputs: gradient(th, keys, params, inputs)),
+            jit(jax.vmap(increments, (0, None, None, None))),
         )
     return _PROGRAMS[(config, names, samples)]
 

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxslam.driver import chunk_runner as shared_chunk_runner
+from jaxslam.compiler import options
 from jaxslam.driver import step_keys
 from jaxslam.executables import compile_runner, runner_tag
 from jaxslam.grid.filter import init, reset_status
@@ -55,21 +56,30 @@ def summarise(info) -> dict[str, Any]:
 
 def chunk_runner(step_fn, config: GridSlamConfig):
     """The jitted chunk runner of ``step_fn`` under ``config``, keeping :func:`summarise`
-    of each step (cached: one per static config; :func:`jaxslam.driver.chunk_runner`)."""
-    return shared_chunk_runner(step_fn, config, summarise)
+    of each step (cached: one per static config; :func:`jaxslam.driver.chunk_runner`),
+    compiled with jaxslam's XLA options (:mod:`jaxslam.compiler`)."""
+    return shared_chunk_runner(step_fn, config, summarise, compiler_options())
 
 
 @dataclass
 class RunStats:
-    """How the maps grew during a run."""
+    """How the maps grew during a run, its times, and the XLA options its programs
+    were compiled with (:mod:`jaxslam.compiler`)."""
 
     growths: list[dict[str, Any]] = field(default_factory=list)
     compile_s: float = 0.0
     wall_s: float = 0.0
+    compiler_options: dict[str, Any] = field(default_factory=lambda: dict(compiler_options()))
 
     @property
     def recompilations(self) -> int:
         return len(self.growths)
+
+
+def compiler_options() -> tuple:
+    """jaxslam's XLA options for the grid programs (:func:`jaxslam.compiler.options`),
+    as sorted ``(name, value)`` pairs (a cache key)."""
+    return tuple(sorted(options().items()))
 
 
 def layout_json(layout: PagedLayout) -> dict[str, Any]:
@@ -90,8 +100,10 @@ def _grown(state, layout: PagedLayout, stats: RunStats, step: int, progress: boo
 
 
 @functools.lru_cache(maxsize=32)
-def _init_runner(config: GridSlamConfig):
-    jitted = jax.jit(lambda key, params, scan, pose: init(key, params, config, scan, pose))
+def _init_runner(config: GridSlamConfig, compiler_options: tuple):
+    jitted = jax.jit(lambda key, params, scan, pose: init(key, params, config, scan, pose),
+                     compiler_options=dict(compiler_options) or None)
+    jitted.jaxslam_compiler_options = dict(compiler_options)
     jitted.jaxslam_tag = runner_tag(init, config, None, donate=False, kind="init")
     return jitted
 
@@ -100,7 +112,8 @@ def _init(key, params, config: GridSlamConfig, first_scan, initial_pose):
     """``init``, its lowered program kept on disk like the chunk runner's
     (:mod:`jaxslam.executables`): a warm run does not trace it."""
     args = (key, params, first_scan, initial_pose)
-    return compile_runner(_init_runner(config), *args)[0](*args)
+    runner = _init_runner(config, compiler_options())
+    return compile_runner(runner, *args)[0](*args)
 
 
 def init_state(key, params, config: GridSlamConfig, first_scan, initial_pose, stats: RunStats, progress=False):

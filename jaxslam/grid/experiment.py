@@ -70,6 +70,8 @@ class GridSlamResult:
         map_stats: pool and tile counts of the final maps (:func:`jaxslam.grid.paged.pool_stats`).
         growths: each growth of the maps (step, what grew, new sizes); each cost a
             recompilation.
+        compiler_options: the XLA options the run's programs were compiled with
+            (:mod:`jaxslam.compiler`).
     """
 
     algorithm: str
@@ -93,6 +95,7 @@ class GridSlamResult:
     keyframe_rule: tuple[float, float, float] = DEFAULT_KEYFRAMES
     map_stats: dict[str, Any] = dataclasses.field(default_factory=dict)
     growths: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    compiler_options: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready scalars."""
@@ -117,6 +120,7 @@ class GridSlamResult:
             "maps": dict(self.map_stats),
             "map_growths": len(self.growths),
             "map_growth_steps": [g["step"] for g in self.growths],
+            "xla_compiler_options": dict(self.compiler_options),
         }
 
 
@@ -336,6 +340,7 @@ def run_grid_slam(
         keyframe_rule=rule,
         map_stats=pool_stats(state.maps, cfg.layout),
         growths=stats.growths,
+        compiler_options=stats.compiler_options,
     )
 
 

@@ -43,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.compiler import jit
 from jaxslam.datasets.geometry import se2_between
 from jaxslam.datasets.rosbag import interpolate_odometry
 from jaxslam.driver import step_keys
@@ -66,7 +67,7 @@ def step_runner(step_fn, config):
         state, info = step_fn(key, state, control, observation, params, config)
         return (state, params), driver.summarise(info)
 
-    return jax.jit(one, donate_argnums=(0,))
+    return jit(one, donate_argnums=(0,))
 
 
 def _budget(need: int, worst: int) -> int:

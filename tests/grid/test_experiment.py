@@ -50,6 +50,31 @@ def test_short_real_log_run():
     assert np.abs(result.keyframe_poses[:, :2]).max() < 5.0
 
 
+def test_grid_programs_compiled_with_jaxslam_options_equal_xla_defaults(monkeypatch):
+    """The grid programs are compiled with jaxslam's XLA options (jaxslam.compiler) and
+    compute bit for bit what XLA's defaults compute: the run of the test above (its
+    compiled program reused here) against the same run with JAXSLAM_XLA_OPTIONS=xla."""
+    from jaxslam import compiler
+    from jaxslam.grid import driver, gmapping
+
+    monkeypatch.delenv(compiler.ENV_VAR, raising=False)
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    try:
+        ours = run_grid_slam("intel", "gmapping", particles=4, seed=0, progress=False, max_keyframes=12)
+    except DatasetNotFoundError:
+        pytest.skip("intel log not available")
+    assert driver.chunk_runner(gmapping.scan_step, ours.config).jaxslam_compiler_options == compiler.OPTIONS
+    assert ours.summary()["xla_compiler_options"] == compiler.OPTIONS
+    monkeypatch.setenv(compiler.ENV_VAR, "xla")
+    xla = run_grid_slam("intel", "gmapping", particles=4, seed=0, progress=False, max_keyframes=12)
+    assert driver.chunk_runner(gmapping.scan_step, xla.config).jaxslam_compiler_options == {}
+    assert xla.summary()["xla_compiler_options"] == {}
+    assert xla.compile_s > 0  # compiled anew, not the program of the first run
+    np.testing.assert_array_equal(ours.trajectory, xla.trajectory)
+    np.testing.assert_array_equal(ours.map_log_odds, xla.map_log_odds)
+    np.testing.assert_array_equal(ours.info["ess"], xla.info["ess"])
+
+
 def test_full_intel_float32_run_ends_without_nan():
     """The whole Intel log (911 keyframes) in float32: nothing in the final state is NaN."""
     import jax
