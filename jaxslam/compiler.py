@@ -17,6 +17,17 @@ option:
   compilation 17.9 s -> 10.0 s, the GMapping-style filter 34.1 s -> 20.7 s and
   13.1 s -> 8.6 s, with the trajectory and the map bit for bit the same.
 
+  One caveat, measured: with these emitters the result can depend on the number of
+  threads XLA uses. XLA splits the generated LLVM module into parts compiled in
+  parallel, one per thread, and with the loop emitters the split changes the machine
+  code of some loops. Intel, ``srupf-gm``: at 30 particles one and two threads give
+  the same result (and the same as XLA's defaults); at 100 particles two threads give
+  another run than one thread, whereas XLA's defaults gave the one-thread result on
+  both. ``xla_cpu_parallel_codegen_split_count=1`` (in ``XLA_FLAGS``) removes the
+  dependence, at 3-4 s more compilation on two cores and the same run time. Code for
+  another CPU model (other vector instructions) can differ in any case, so runs are
+  reproducible on one machine, not bit for bit across machines.
+
 The landmark filters keep XLA's defaults: with this option they compile about 25 %
 faster but do not run faster (Victoria Park, ERB, 100 particles: 4.6 s either way
 for 2000 steps), and their results change in float rounding, which the chaotic
