@@ -58,7 +58,7 @@ ENV_VAR = "JAXSLAM_XLA_OPTIONS"
 OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
 """jaxslam's XLA options (see the module docstring)."""
 
-__all__ = ["ENV_VAR", "OPTIONS", "jit", "options"]
+__all__ = ["ENV_VAR", "OPTIONS", "jit", "jit_with", "options"]
 
 
 def options() -> dict[str, Any]:
@@ -73,15 +73,22 @@ def options() -> dict[str, Any]:
     return {name: value for name, value in OPTIONS.items() if f"--{name}" not in flags}
 
 
-def jit(fun=None, /, **kwargs):
-    """``jax.jit`` with jaxslam's compiler options (:func:`options`); usable as a
-    decorator, with or without keyword arguments (``@jit(static_argnames=...)``)."""
+def jit_with(fun, compiler_options: dict[str, Any] | None, **kwargs):
+    """``jax.jit(fun, **kwargs)`` compiled with exactly ``compiler_options`` (none when
+    empty), which are kept on the result as ``jaxslam_compiler_options`` (a program
+    loaded from disk is compiled with them, :mod:`jaxslam.executables`)."""
     import jax
 
+    chosen = dict(compiler_options or {})
+    jitted = jax.jit(fun, compiler_options=chosen or None, **kwargs)
+    jitted.jaxslam_compiler_options = chosen
+    return jitted
+
+
+def jit(fun=None, /, **kwargs):
+    """``jax.jit`` with jaxslam's compiler options (:func:`options`) and any given
+    ``compiler_options`` on top; usable as a decorator, with or without keyword
+    arguments (``@jit(static_argnames=...)``)."""
     if fun is None:
         return lambda f: jit(f, **kwargs)
-    merged = dict(options())
-    merged.update(kwargs.pop("compiler_options", None) or {})
-    jitted = jax.jit(fun, compiler_options=merged or None, **kwargs)
-    jitted.jaxslam_compiler_options = merged
-    return jitted
+    return jit_with(fun, {**options(), **(kwargs.pop("compiler_options", None) or {})}, **kwargs)

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.compiler import jit_with
 from jaxslam.executables import compile_runner
 
 StepFn = Callable[[Any, Any], tuple[Any, Any]]
@@ -91,9 +92,8 @@ def make_chunk_runner(
 
         return jax.lax.scan(body, carry, (xs_chunk, valid))
 
-    runner = jax.jit(run_chunk, donate_argnums=(0,) if donate else (), compiler_options=compiler_options or None)
+    runner = jit_with(run_chunk, compiler_options, donate_argnums=(0,) if donate else ())
     runner.jaxslam_tag = tag
-    runner.jaxslam_compiler_options = dict(compiler_options or {})
     return runner
 
 

@@ -52,3 +52,9 @@ def test_jit_applies_and_records_options(monkeypatch):
         compiler.jit(f, static_argnames=("n",), compiler_options={"xla_no_such_option": 1})(x, n=1)
     monkeypatch.setenv(compiler.ENV_VAR, "xla")
     assert compiler.jit(f, static_argnames=("n",)).jaxslam_compiler_options == {}
+    # jit_with: exactly the given options, jaxslam's not added
+    assert compiler.jit_with(f, None, static_argnames=("n",)).jaxslam_compiler_options == {}
+    monkeypatch.delenv(compiler.ENV_VAR)
+    exact = compiler.jit_with(f, {}, static_argnames=("n",))
+    assert exact.jaxslam_compiler_options == {}
+    np.testing.assert_array_equal(np.asarray(exact(x, n=2)), np.asarray(f(x, 2)))

@@ -76,8 +76,8 @@ import numpy as np
 from jax import Array
 from jax.scipy.special import logsumexp
 
-from jaxslam.core import se2
 from jaxslam.compiler import jit
+from jaxslam.core import se2
 from jaxslam.core.resampling import normalize_log_weights
 from jaxslam.driver import step_keys
 from jaxslam.grid import srupf

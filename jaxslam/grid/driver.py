@@ -25,8 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxslam.compiler import jit_with, options
 from jaxslam.driver import chunk_runner as shared_chunk_runner
-from jaxslam.compiler import options
 from jaxslam.driver import step_keys
 from jaxslam.executables import compile_runner, runner_tag
 from jaxslam.grid.filter import init, reset_status
@@ -69,7 +69,7 @@ class RunStats:
     growths: list[dict[str, Any]] = field(default_factory=list)
     compile_s: float = 0.0
     wall_s: float = 0.0
-    compiler_options: dict[str, Any] = field(default_factory=lambda: dict(compiler_options()))
+    compiler_options: dict[str, Any] = field(default_factory=dict)
 
     @property
     def recompilations(self) -> int:
@@ -101,9 +101,7 @@ def _grown(state, layout: PagedLayout, stats: RunStats, step: int, progress: boo
 
 @functools.lru_cache(maxsize=32)
 def _init_runner(config: GridSlamConfig, compiler_options: tuple):
-    jitted = jax.jit(lambda key, params, scan, pose: init(key, params, config, scan, pose),
-                     compiler_options=dict(compiler_options) or None)
-    jitted.jaxslam_compiler_options = dict(compiler_options)
+    jitted = jit_with(lambda key, params, scan, pose: init(key, params, config, scan, pose), dict(compiler_options))
     jitted.jaxslam_tag = runner_tag(init, config, None, donate=False, kind="init")
     return jitted
 
@@ -167,9 +165,11 @@ def run_filter(
     while True:
         if checkpoint is not None:
             checkpoint.static = {"layout": layout_json(config.layout)}
+        runner = chunk_runner(step_fn, config)
+        stats.compiler_options = dict(runner.jaxslam_compiler_options)  # what the run was compiled with
         (state, params), ys, timing = run_scan_chunked(
             None, (state, params), xs, chunk=chunk, desc=desc, unit=unit, progress=progress,
-            runner=chunk_runner(step_fn, config), checkpoint=checkpoint, start=start,
+            runner=runner, checkpoint=checkpoint, start=start,
             stop=lambda carry: int(carry[0].status.code) != 0, prior=prior,
         )
         if checkpoint is not None:
