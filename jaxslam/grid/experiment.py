@@ -26,7 +26,7 @@ import numpy as np
 from jaxslam.datasets.carmen import CarmenLog, load_dataset_log, select_keyframes
 from jaxslam.datasets.registry import algorithms
 from jaxslam.grid import gmapping, srupf
-from jaxslam.grid.driver import run_filter
+from jaxslam.grid.driver import DEFAULT_CHUNK, run_filter
 from jaxslam.grid.filter import best_particle
 from jaxslam.grid.paged import PagedLayout, pool_stats, stitch, window_side
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, Scan, default_params
@@ -211,7 +211,7 @@ def run_grid_slam(
     pool_slots: int | None = None,
     max_keyframes: int | None = None,
     dtype=jnp.float32,
-    chunk: int = 64,
+    chunk: int = DEFAULT_CHUNK,
     checkpoint: Any = None,
 ) -> GridSlamResult:
     """Run ``algorithm`` on a log and collect trajectory, map and diagnostics.
@@ -245,7 +245,8 @@ def run_grid_slam(
         max_keyframes: stop after about this many keyframes (short runs, CI): the log
             is cut where GMapping's rule on the odometry reaches this many.
         dtype: float dtype of poses and params.
-        chunk: scans per compiled chunk.
+        chunk: scans per compiled chunk (:data:`jaxslam.grid.driver.DEFAULT_CHUNK`);
+            the result does not depend on it.
         checkpoint: a :class:`jaxslam.checkpoint.Checkpoint` to save the state every N
             scans and/or resume from it (see :func:`jaxslam.progress.run_scan_chunked`).
     """

@@ -182,8 +182,9 @@ def sim_log():
 
 
 def _run(log, **kw):
+    kw.setdefault("chunk", 8)
     return run_grid_slam(log, "srupf-gm", particles=3, seed=1, progress=False, linear_update=0.5,
-                         angular_update=0.3, config={"match_iterations": 3}, chunk=8, max_keyframes=33, **kw)
+                         angular_update=0.3, config={"match_iterations": 3}, max_keyframes=33, **kw)
 
 
 # Grows the page table at init and at step 56 and the pool at step 11: three
@@ -196,6 +197,14 @@ def growing_run(sim_log):
     return _run(sim_log, **SMALL)
 
 
+def _box_of(layout):
+    """A box over the centres of the first and last tiles of ``layout``'s page table."""
+    tm = layout.tile_metres
+    x0 = layout.origin_x + (layout.table_x0 + 0.5) * tm
+    y0 = layout.origin_y + (layout.table_y0 + 0.5) * tm
+    return (x0, y0, x0 + (layout.table_width - 1) * tm, y0 + (layout.table_height - 1) * tm)
+
+
 def test_growing_run_equals_run_with_large_layout(sim_log, growing_run):
     """A run that starts with a small pool and table (and grows both) gives the same
     trajectory and map as one that starts large enough."""
@@ -203,17 +212,25 @@ def test_growing_run_equals_run_with_large_layout(sim_log, growing_run):
     # last table tiles, its pool size): no growth, and the same compiled program as the
     # grown run's last stretch.
     grown = growing_run.config.layout
-    tm = grown.tile_metres
-    x0 = grown.origin_x + (grown.table_x0 + 0.5) * tm
-    y0 = grown.origin_y + (grown.table_y0 + 0.5) * tm
-    box = (x0, y0, x0 + (grown.table_width - 1) * tm, y0 + (grown.table_height - 1) * tm)
-    large = _run(sim_log, bounds=box, pool_slots=grown.slots)
+    large = _run(sim_log, bounds=_box_of(grown), pool_slots=grown.slots)
     grew = {g["grew"] for g in growing_run.growths}
     assert grew == {"pool", "page table"} and large.summary()["map_growths"] == 0
     assert large.config.layout == grown
     np.testing.assert_array_equal(growing_run.trajectory, large.trajectory)
     np.testing.assert_array_equal(growing_run.map_log_odds, large.map_log_odds)
     assert growing_run.origin == large.origin
+
+
+def test_run_does_not_depend_on_chunk_length(sim_log, growing_run):
+    """Chunks of 8 scans with two growths, or the whole log (about 100 scans) in one
+    chunk: the same trajectory and map (a step refused for want of map space holds the
+    state through the rest of its chunk)."""
+    one_chunk = _run(sim_log, **{**SMALL, "chunk": 4096})
+    scans = growing_run.trajectory.shape[0]
+    assert one_chunk.summary()["map_growths"] == growing_run.summary()["map_growths"] > 0
+    assert scans > 8 * 4
+    np.testing.assert_array_equal(growing_run.trajectory, one_chunk.trajectory)
+    np.testing.assert_array_equal(growing_run.map_log_odds, one_chunk.map_log_odds)
 
 
 def test_checkpoint_of_growing_run_resumes_bit_for_bit(sim_log, growing_run, tmp_path):
