@@ -54,19 +54,24 @@ def occupancy_image(log_odds: np.ndarray, occupied_thresh: float = 0.65, free_th
         raise ValueError(f"log_odds must be (H, W), got shape {src.shape}")
     h = src.shape[0]
     img = np.empty(src.shape, np.uint8)
-    occupied_lo = math.log(occupied_thresh / (1.0 - occupied_thresh))
-    free_lo = math.log(free_thresh / (1.0 - free_thresh))
-    # Blocks of rows keep the float64 temporaries small (a 5000 x 7700 map would
-    # otherwise need about 1 GB of them); the image is written upside down directly.
+    # A float32 map is compared in float32 (no float64 copy: a 5312 x 6400 map took
+    # 0.7 s, now about a third of that) against the thresholds rounded to float32. They
+    # move by less than 1e-7, far inside the 1e-6 band, so every cell outside the band
+    # is on the same side of both.
+    real = np.float32 if src.dtype == np.float32 else np.float64
+    occupied_lo = real(math.log(occupied_thresh / (1.0 - occupied_thresh)))
+    free_lo = real(math.log(free_thresh / (1.0 - free_thresh)))
+    # Blocks of rows keep the temporaries small (a 5000 x 7700 map would otherwise need
+    # about 1 GB of them); the image is written upside down directly.
     for r0, r1 in row_blocks(h, src.shape[1]):
-        lo = src[r0:r1].astype(np.float64)
+        lo = src[r0:r1].astype(real, copy=False)
         block = np.full(lo.shape, UNKNOWN, np.uint8)
         with np.errstate(invalid="ignore"):
             block[lo > occupied_lo] = OCCUPIED
             block[lo < free_lo] = FREE
             near = (np.abs(lo - occupied_lo) < 1e-6) | (np.abs(lo - free_lo) < 1e-6)
         if near.any():
-            p = 1.0 / (1.0 + np.exp(-lo[near]))
+            p = 1.0 / (1.0 + np.exp(-lo[near].astype(np.float64)))
             block[near] = np.where(p > occupied_thresh, OCCUPIED, np.where(p < free_thresh, FREE, UNKNOWN))
         img[h - r0 - lo.shape[0] : h - r0] = block[::-1]
     return img
