@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import threading
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -41,25 +43,36 @@ def write_json(path: Path, payload: dict) -> None:
     tmp.replace(path)
 
 
-def write_landmark_outputs(out: Path, result, title: str, comment: str, reference_xy, reference_label: str,
-                           true_landmarks) -> None:
-    """``trajectory.tum``, ``landmarks.csv`` and ``arrays.npz`` of a landmark run.
+def write_npz(path: Path, **arrays) -> None:
+    """``np.savez_compressed`` at zlib level 1 (NumPy's is level 6), written atomically.
+
+    The file is an ordinary ``.npz`` (``np.load`` reads it). Killian's 5312 x 6400
+    float32 map: 1.1 -> 0.47 s, 2.3 -> 3.5 MB; Intel's arrays 0.11 -> 0.03 s.
+    """
+    path = Path(path)
+    partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    try:
+        with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
+            for name, value in arrays.items():
+                with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
+
+
+def landmark_arrays(result, title: str, reference_xy, reference_label: str, true_landmarks) -> dict:
+    """What ``arrays.npz`` of a landmark run holds (the figures are drawn from it).
 
     Args:
         result: a :class:`jaxslam.feature.experiment.LandmarkSlamResult`.
-        title: the figures' title; ``comment``: the TUM file's header comment.
+        title: the figures' title.
         reference_xy: ``(R, 2)`` reference positions drawn with the trajectory, or None.
         reference_label: their legend label.
         true_landmarks: ``(M, 2)`` true landmark positions, or None.
     """
-    write_trajectory(out, result.times, result.trajectory, comment)
-    with open(out / "landmarks.csv", "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["id", "x_m", "y_m", "cov_xx", "cov_xy", "cov_yy"])
-        for i, (m, c) in enumerate(zip(result.landmark_means, result.landmark_covs)):
-            writer.writerow([i, f"{m[0]:.4f}", f"{m[1]:.4f}", f"{c[0, 0]:.6g}", f"{c[0, 1]:.6g}", f"{c[1, 1]:.6g}"])
-    np.savez_compressed(
-        out / "arrays.npz", kind="landmark", times=result.times, trajectory=result.trajectory,
+    return dict(
+        kind="landmark", times=result.times, trajectory=result.trajectory,
         landmark_means=result.landmark_means, landmark_covs=result.landmark_covs,
         reference_xy=reference_xy if reference_xy is not None else np.zeros((0, 2)),
         reference_label=reference_label,
@@ -70,6 +83,18 @@ def write_landmark_outputs(out: Path, result, title: str, comment: str, referenc
     )
 
 
+def write_landmark_outputs(out: Path, result, arrays: dict, comment: str) -> None:
+    """``trajectory.tum`` (``comment``: its header comment), ``landmarks.csv`` and
+    ``arrays.npz`` (:func:`landmark_arrays`) of a landmark run."""
+    write_trajectory(out, result.times, result.trajectory, comment)
+    with open(out / "landmarks.csv", "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["id", "x_m", "y_m", "cov_xx", "cov_xy", "cov_yy"])
+        for i, (m, c) in enumerate(zip(result.landmark_means, result.landmark_covs)):
+            writer.writerow([i, f"{m[0]:.4f}", f"{m[1]:.4f}", f"{c[0, 0]:.6g}", f"{c[0, 1]:.6g}", f"{c[1, 1]:.6g}"])
+    write_npz(out / "arrays.npz", **arrays)
+
+
 def write_trajectory(out: Path, times, trajectory, comment: str) -> None:
     """``trajectory.tum``."""
     from jaxslam.metrics.trajectory_io import write_tum
@@ -77,18 +102,41 @@ def write_trajectory(out: Path, times, trajectory, comment: str) -> None:
     write_tum(out / "trajectory.tum", times, trajectory, comment=comment)
 
 
-def write_grid_outputs(out: Path, result, title: str) -> None:
-    """``map.pgm``, ``map.yaml``, ``map.png`` and ``arrays.npz`` of a grid run
-    (a :class:`jaxslam.grid.experiment.GridSlamResult`)."""
-    from jaxslam.grid.export import save_map
-
-    save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
-    np.savez_compressed(
-        out / "arrays.npz", kind="laser", times=result.scan_times, trajectory=result.trajectory,
+def grid_arrays(result, title: str) -> dict:
+    """What ``arrays.npz`` of a grid run (a :class:`jaxslam.grid.experiment.GridSlamResult`)
+    holds (the figures are drawn from it)."""
+    return dict(
+        kind="laser", times=result.scan_times, trajectory=result.trajectory,
         log_odds=result.map_log_odds, resolution=result.resolution, origin=np.asarray(result.origin),
         ess=result.info["ess"], resampled=result.info["resampled"], particles=result.particles,
         title=title,
     )
+
+
+def write_grid_outputs(out: Path, result, arrays: dict, comment: str) -> None:
+    """``trajectory.tum`` (``comment``: its header comment), ``map.pgm``, ``map.yaml``,
+    ``map.png`` and ``arrays.npz`` (:func:`grid_arrays`) of a grid run."""
+    from jaxslam.grid.export import save_map
+
+    write_trajectory(out, result.scan_times, result.trajectory, comment)
+    save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
+    write_npz(out / "arrays.npz", **arrays)
+
+
+def write_with_figures(out: Path, write_files, arrays: dict | None) -> None:
+    """``write_files()`` on a thread while the figures are drawn from ``arrays``
+    (:func:`replot`; None: no figures); any error of either is raised once both ended.
+
+    The files' zlib compression and NumPy work release the GIL, the figures mostly hold
+    it, so the two overlap: Killian's 5312 x 6400 map, 2.4 s one after the other
+    (figures redrawn from the file), 1.4 s together."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxslam-write") as pool:
+        files = pool.submit(write_files)
+        if arrays is not None:
+            replot(out, arrays)
+        files.result()
 
 
 def prefetch_plotting() -> threading.Thread:
@@ -108,18 +156,24 @@ def prefetch_plotting() -> threading.Thread:
     return thread
 
 
-def replot(folder: str | Path) -> list[Path]:
-    """Draw the figures of an output folder from its ``arrays.npz``."""
+def replot(folder: str | Path, arrays: dict | None = None) -> list[Path]:
+    """Draw the figures of an output folder from its ``arrays.npz``, or from ``arrays``
+    (what :func:`grid_arrays` or :func:`landmark_arrays` gave; a run draws its figures
+    from memory while the file is written)."""
     from jaxslam import plotting
 
     folder = Path(folder)
-    arrays_path = folder / "arrays.npz"
-    if not arrays_path.exists():
-        raise DatasetNotFoundError(f"{str(arrays_path)!r} not found: is {str(folder)!r} a `jaxslam run` output folder?")
-    try:
-        data = np.load(arrays_path, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise DataFormatError(arrays_path, None, f"cannot read: {err}") from None
+    if arrays is not None:
+        data = {name: np.asarray(value) for name, value in arrays.items()}
+    else:
+        arrays_path = folder / "arrays.npz"
+        if not arrays_path.exists():
+            raise DatasetNotFoundError(
+                f"{str(arrays_path)!r} not found: is {str(folder)!r} a `jaxslam run` output folder?")
+        try:
+            data = np.load(arrays_path, allow_pickle=False)
+        except (OSError, ValueError) as err:
+            raise DataFormatError(arrays_path, None, f"cannot read: {err}") from None
     title = str(data["title"])
     written = []
     if str(data["kind"]) == "landmark":

@@ -21,7 +21,7 @@ import numpy as np
 
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
-from jaxslam.outputs import prefetch_plotting, replot, write_json
+from jaxslam.outputs import prefetch_plotting, write_json, write_with_figures
 
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
@@ -94,11 +94,13 @@ def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
 
 def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
                  checkpoint=None, viz=None, prefetch=False):
-    """Run a landmark filter on ``info``'s sequence, score it, write its files; the summary.
-    ``prefetch``: import the plotting module on a thread once the data is loaded."""
+    """Run a landmark filter on ``info``'s sequence and score it: ``(summary, arrays,
+    write_files)``, the figures' data (:func:`jaxslam.outputs.landmark_arrays`) and a
+    function that writes the run's files. ``prefetch``: import the plotting module on
+    a thread once the data is loaded."""
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.scoring import score_landmark_run
-    from jaxslam.outputs import write_landmark_outputs
+    from jaxslam.outputs import landmark_arrays, write_landmark_outputs
 
     loading = time.perf_counter()
     sequence = info.load(seed=seed, max_steps=max_steps)
@@ -129,15 +131,11 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
     summary["input_recovered"] = dict(getattr(sequence, "meta", {}).get("recovered", {}))
     scored = score_landmark_run(info, result, sequence)
     summary.update(scored.scores)
-    writing = time.perf_counter()
-    write_landmark_outputs(
-        out, result, title=f"{algorithm}, {info.name}, {particles} particles",
-        comment=f"jaxslam {algorithm} on {info.name}, {particles} particles, seed {seed}",
-        reference_xy=scored.reference_xy, reference_label=scored.reference_label,
-        true_landmarks=scored.true_landmarks,
-    )
-    summary["output_s"] = time.perf_counter() - writing
-    return summary
+    arrays = landmark_arrays(result, title=f"{algorithm}, {info.name}, {particles} particles",
+                             reference_xy=scored.reference_xy, reference_label=scored.reference_label,
+                             true_landmarks=scored.true_landmarks)
+    comment = f"jaxslam {algorithm} on {info.name}, {particles} particles, seed {seed}"
+    return summary, arrays, lambda: write_landmark_outputs(out, result, arrays, comment)
 
 
 # --------------------------------------------------------------------------- grid
@@ -171,11 +169,13 @@ def _log_cache_folder() -> str | None:
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
              checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False):
-    """Run a grid filter on a laser log, score it, write its files; the summary.
-    ``prefetch``: import the plotting module on a thread once the log is loaded."""
+    """Run a grid filter on a laser log and score it: ``(summary, arrays, write_files)``,
+    the figures' data (:func:`jaxslam.outputs.grid_arrays`) and a function that writes
+    the run's files. ``prefetch``: import the plotting module on a thread once the log
+    is loaded."""
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.scoring import score_grid_run
-    from jaxslam.outputs import write_grid_outputs, write_trajectory
+    from jaxslam.outputs import grid_arrays, write_grid_outputs
 
     name = info.name if info is not None else str(path)
     loading = time.perf_counter()
@@ -212,12 +212,9 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     if path is not None and _is_bag(path):
         summary["bag"] = dict(log.params)  # the topics and frames used
     summary.update(score_grid_run(info, result, log))
-    writing = time.perf_counter()
-    write_trajectory(out, result.scan_times, result.trajectory,
-                     comment=f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}")
-    write_grid_outputs(out, result, title=f"{algorithm}, {name}, {particles} particles")
-    summary["output_s"] = time.perf_counter() - writing
-    return summary
+    arrays = grid_arrays(result, title=f"{algorithm}, {name}, {particles} particles")
+    comment = f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}"
+    return summary, arrays, lambda: write_grid_outputs(out, result, arrays, comment)
 
 
 # --------------------------------------------------------------------------- live view (Rerun)
@@ -381,7 +378,7 @@ def run(
     precision = jax.enable_x64(True) if float64 else contextlib.nullcontext()
     try:
         with precision, CompileCounter() as compilations:
-            summary = runner(*args, checkpoint=checkpoint, **extra)
+            summary, arrays, write_files = runner(*args, checkpoint=checkpoint, **extra)
     finally:
         if viz is not None:
             viz.close()
@@ -394,11 +391,11 @@ def run(
     # XLA programs compiled or loaded from the persistent cache (jaxslam.cache)
     summary["compilations"] = compilations.as_dict()
     summary["cache_dir"] = jax.config.jax_compilation_cache_dir
-    # load_s, output_s: reading the data; writing the files and figures (seconds)
+    # load_s, output_s: reading the data; writing the files and drawing the figures
+    # (seconds; the two overlap)
     writing = time.perf_counter()
-    if plots:
-        replot(out)
-    summary["output_s"] = summary.get("output_s", 0.0) + time.perf_counter() - writing
+    write_with_figures(out, write_files, arrays if plots else None)
+    summary["output_s"] = time.perf_counter() - writing
     summary["total_s"] = time.time() - started
     write_json(out / "summary.json", summary)
     return summary
