@@ -135,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--cache-dir", type=Path, default=None, metavar="DIR",
                      help="JAX persistent compilation cache folder, also holding parsed CARMEN logs (default: "
                           "$JAXSLAM_CACHE_DIR, else $XDG_CACHE_HOME/jaxslam/jax or ~/.cache/jaxslam/jax)")
+    run.add_argument("--threads", default=None, metavar="N|all",
+                     help="threads of XLA's CPU runtime; default $JAXSLAM_THREADS, else one below 300 particles "
+                          "(faster there: the filters' kernels are too small to share) and all cores above")
     run.add_argument("--no-cache", action="store_true",
                      help="do not use the compilation cache nor the parsed-log cache (same as JAXSLAM_CACHE_DIR=off)")
 
@@ -229,6 +232,8 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
             run_args = json.loads(saved.read_text())
         except json.JSONDecodeError as err:
             raise DataFormatError(saved, err.lineno, f"not valid JSON: {err.msg}") from None
+        if args.threads is not None:
+            run_args["threads"] = args.threads
         return runs.run(out=args.resume, progress=not args.no_progress, plots=not args.no_plots,
                         checkpoint_every=args.checkpoint_every, resume=True, **run_args)
     if args.out is None:
@@ -246,7 +251,7 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
         bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,
              "laser_offset": args.laser_mount},
         rerun=args.rerun, rerun_spawn=args.rerun_spawn,
-        max_range=args.max_range,
+        max_range=args.max_range, threads=args.threads,
     )
 
 

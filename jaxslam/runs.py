@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxslam.compiler import set_threads
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
 from jaxslam.outputs import prefetch_plotting, write_json, write_with_figures
@@ -286,6 +287,7 @@ def run(
     rerun: str | Path | None = None,
     rerun_spawn: bool = False,
     max_range: float | None = None,
+    threads: int | str | None = None,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -304,6 +306,10 @@ def run(
     of the "no return" sentinel detection (:func:`jaxslam.datasets.carmen.detect_no_return`).
     ``float64`` runs the filter in double precision: JAX's 64-bit mode is switched on
     for this run only (``jax.enable_x64``), the default float32 path never touches it.
+    ``threads`` sizes XLA's CPU thread pool (a count or ``"all"``; default
+    ``$JAXSLAM_THREADS``, else one thread below 300 particles):
+    :func:`jaxslam.compiler.set_threads`, which can act only before the process's
+    first JAX computation; ``summary.json`` ``xla_threads`` says what was in effect.
     """
     import jax
     import jax.numpy as jnp
@@ -330,6 +336,10 @@ def run(
     if (rerun is not None or rerun_spawn) and (checkpoint_every is not None or resume):
         raise RunError("--rerun/--rerun-spawn cannot be combined with --checkpoint-every/--resume")
     particles = particles or DEFAULT_PARTICLES[kind]
+    try:
+        xla_threads = set_threads(threads, particles)
+    except ValueError as err:
+        raise RunError(str(err)) from None
     dtype = jnp.float64 if float64 else jnp.float32
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -346,11 +356,13 @@ def run(
         if not max_range > 0:
             raise RunError(f"--max-range must be positive, got {max_range}")
         run_args["max_range"] = float(max_range)
+    if threads is not None:
+        run_args["threads"] = threads
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint
 
-        fingerprint = {k: v for k, v in run_args.items() if k != "chunk"}
+        fingerprint = {k: v for k, v in run_args.items() if k not in ("chunk", "threads")}
         checkpoint = Checkpoint(out / "checkpoint.npz", every=checkpoint_every, fingerprint=fingerprint,
                                 resume=resume)
         if resume and not checkpoint.path.exists():
@@ -391,6 +403,7 @@ def run(
     # XLA programs compiled or loaded from the persistent cache (jaxslam.cache)
     summary["compilations"] = compilations.as_dict()
     summary["cache_dir"] = jax.config.jax_compilation_cache_dir
+    summary["xla_threads"] = xla_threads
     # load_s, output_s: reading the data; writing the files and drawing the figures
     # (seconds; the two overlap)
     writing = time.perf_counter()

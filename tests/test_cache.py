@@ -100,11 +100,11 @@ def test_cli_no_cache_and_cache_dir_flags(tmp_path):
 
 @pytest.mark.slow
 def test_cli_runs_identical_cold_warm_and_off(tmp_path):
-    """Whole `jaxslam run`s in fresh processes: same files with the cache cold, warm and off."""
+    """Whole `jaxslam run`s in fresh processes: same files with the cache cold, warm and off,\nand with one XLA thread (the default at 8 particles) or all."""
     cache = tmp_path / "cache"
     outputs = {}
     for name, flags in (("cold", ["--cache-dir", str(cache)]), ("warm", ["--cache-dir", str(cache)]),
-                        ("off", ["--no-cache"])):
+                        ("off", ["--no-cache"]), ("all threads", ["--no-cache", "--threads", "all"])):
         out = tmp_path / name
         proc = subprocess.run(
             [sys.executable, "-m", "jaxslam.cli", "run", "--max-steps", "20", "--particles", "8", "--no-plots",
@@ -118,7 +118,11 @@ def test_cli_runs_identical_cold_warm_and_off(tmp_path):
             assert summary["compilations"]["cache_hits"] > 0
         if name == "off":
             assert summary["cache_dir"] is None and summary["compilations"]["cache_hits"] == 0
-    assert outputs["cold"] == outputs["warm"] == outputs["off"]
+        if name == "all threads":
+            assert summary["xla_threads"] == {"threads": "all", "source": "argument"}
+        else:
+            assert summary["xla_threads"] == {"threads": 1, "source": "auto"}
+    assert outputs["cold"] == outputs["warm"] == outputs["off"] == outputs["all threads"]
 
 
 def test_unusable_cache_folder(tmp_path, monkeypatch, capsys):

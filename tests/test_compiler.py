@@ -1,7 +1,12 @@
-"""jaxslam's XLA compiler options (jaxslam.compiler): what options() returns, and that
-jit applies them and keeps them on the jitted function."""
+"""jaxslam's XLA compiler options (jaxslam.compiler): what options() returns, that jit
+applies them and keeps them on the jitted function, and the size of XLA's CPU thread
+pool (set_threads)."""
 
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
 
 import jax.numpy as jnp
 import numpy as np
@@ -58,3 +63,84 @@ def test_jit_applies_and_records_options(monkeypatch):
     exact = compiler.jit_with(f, {}, static_argnames=("n",))
     assert exact.jaxslam_compiler_options == {}
     np.testing.assert_array_equal(np.asarray(exact(x, n=2)), np.asarray(f(x, 2)))
+
+
+@pytest.fixture
+def fresh_backend(monkeypatch):
+    """set_threads as if no JAX computation had run yet in this process (it has: the
+    real pool is not touched; only the environment variables are checked)."""
+    from jax._src import xla_bridge
+
+    monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
+    for name in (compiler.THREADS_ENV, "NPROC"):
+        monkeypatch.delenv(name, raising=False)
+
+
+def test_set_threads_precedence(fresh_backend, monkeypatch):
+    below, above = compiler.SINGLE_THREAD_BELOW - 1, compiler.SINGLE_THREAD_BELOW
+    assert compiler.auto_threads(below) == 1 and compiler.auto_threads(above) is None
+    assert compiler.set_threads(None, 100) == {"threads": 1, "source": "auto"}
+    assert os.environ["NPROC"] == "1"
+    monkeypatch.delenv("NPROC")  # (else it counts as the user's own, below)
+    assert compiler.set_threads(None, 1000) == {"threads": "all", "source": "auto"}
+    assert "NPROC" not in os.environ
+    monkeypatch.setenv(compiler.THREADS_ENV, "all")
+    assert compiler.set_threads(None, 100) == {"threads": "all", "source": "JAXSLAM_THREADS"}
+    assert "NPROC" not in os.environ
+    # the argument wins over the environment
+    assert compiler.set_threads(2, 100) == {"threads": 2, "source": "argument"}
+    assert os.environ["NPROC"] == "2"
+    monkeypatch.delenv("NPROC")
+    assert compiler.set_threads("0", 100) == {"threads": "all", "source": "argument"}
+    monkeypatch.delenv(compiler.THREADS_ENV)
+    # a user's own NPROC is kept
+    monkeypatch.setenv("NPROC", "3")
+    assert compiler.set_threads(None, 10) == {"threads": 3, "source": "NPROC"}
+    assert os.environ["NPROC"] == "3"
+    for bad in ("-1", "two", 1.5):
+        with pytest.raises(ValueError, match="threads must be a positive thread count or 'all'"):
+            compiler.set_threads(bad, 100)
+    monkeypatch.setenv(compiler.THREADS_ENV, "x")
+    with pytest.raises(ValueError, match="JAXSLAM_THREADS must be"):
+        compiler.set_threads(None, 100)
+
+
+def test_set_threads_after_the_backend_started_changes_nothing(monkeypatch):
+    jnp.zeros(1).block_until_ready()  # the backend of this process has started
+    monkeypatch.delenv("NPROC", raising=False)
+    assert compiler.set_threads(1, 100) == {"threads": "all", "source": "backend already started"}
+    assert "NPROC" not in os.environ
+
+
+def _xla_threads_in_subprocess(threads) -> int:
+    code = (
+        "import os, jax.numpy as jnp\n"
+        "from jaxslam.compiler import set_threads\n"
+        f"set_threads({threads!r}, 100)\n"
+        "jnp.zeros(3).block_until_ready()\n"
+        "names = [open(f'/proc/self/task/{t}/comm').read().strip() for t in os.listdir('/proc/self/task')]\n"
+        "print(sum('XLAEigen' in n for n in names))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("NPROC", compiler.THREADS_ENV)}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    return int(out.stdout.strip().splitlines()[-1])
+
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task") or (os.cpu_count() or 1) < 2,
+                    reason="counts the threads of XLA's pool in /proc on a multi-core machine")
+def test_set_threads_sizes_xla_thread_pool():
+    # XLA reads NPROC when its CPU backend starts (DefaultThreadPoolSize); if a JAX
+    # upgrade stops doing so, this fails.
+    assert _xla_threads_in_subprocess(1) == 1
+    assert _xla_threads_in_subprocess("all") == min(os.cpu_count(), len(os.sched_getaffinity(0)))
+
+
+def test_results_do_not_depend_on_xla_threads():
+    """The same program (test_cache's) in fresh processes with one XLA thread and with
+    two gives the same bits."""
+    from tests.test_cache import PROGRAM, _run_program
+
+    one = _run_program(PROGRAM, ["off"], {"NPROC": "1"})
+    two = _run_program(PROGRAM, ["off"], {"NPROC": "2"})
+    assert one["result"] == two["result"]
