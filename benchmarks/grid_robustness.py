@@ -81,6 +81,9 @@ JUMP_M = 0.3
 def worker(spec: dict) -> dict:
     import jax
 
+    from jaxslam.compiler import set_threads
+
+    set_threads(None, spec["algorithm"], int(spec["particles"]))  # XLA's thread pool as `jaxslam run` sizes it
     cache = os.environ.get("JAX_COMPILATION_CACHE_DIR", "/tmp/jaxslam_robust_jax_cache")
     jax.config.update("jax_compilation_cache_dir", cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)

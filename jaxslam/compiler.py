@@ -99,25 +99,30 @@ THREADS_ENV = "JAXSLAM_THREADS"
 """Threads of XLA's CPU runtime for a run: a count, or ``all`` (XLA's default, every
 core); unset: :func:`auto_threads`. An explicit ``threads`` argument wins."""
 
-SINGLE_THREAD_BELOW = 300
-"""Particle count below which a run uses one XLA thread (:func:`auto_threads`)."""
+SINGLE_THREAD_MAX_PARTICLES = {"erb-upf": 300, "rb-upf": 300, "srupf-gm": 100}
+"""Filters that :func:`auto_threads` runs on one XLA thread, up to how many particles."""
 
 
-def auto_threads(particles: int) -> int | None:
-    """The thread count jaxslam picks for a filter of ``particles`` particles: one below
-    :data:`SINGLE_THREAD_BELOW`, else ``None`` (XLA's default: every core).
+def auto_threads(algorithm: str, particles: int) -> int | None:
+    """The thread count jaxslam picks: one for the filters and particle counts of
+    :data:`SINGLE_THREAD_MAX_PARTICLES`, else ``None`` (XLA's default: every core).
 
     At these sizes a filter step is hundreds of small kernels (Victoria Park, ERB: about
     700 per scan, each over a few hundred to a few thousand numbers), and XLA's CPU
     runtime spreads independent kernels and the iterations of each over its threads;
     the hand-overs cost more than the second core gives. Measured on a 2-core Xeon VM,
     alternating one thread with XLA's default in one sitting, the same results bit for
-    bit: Victoria Park ERB, 2000 scans, 100 particles 4.7-5.4 s against 5.3-6.6 s
-    (and half the CPU time), 300 particles 7.9-8.7 s against 7.6-8.3 s, 1000
-    particles 500 scans 13.5 s against 8.5-9.1 s; Intel ``srupf-gm`` filter loop, 30
-    particles 20.6 s against 21.8-23.7 s, 100 particles 61-68 s against 68-70 s.
+    bit (the README has the table): Victoria Park ERB, 2000 scans, 100 particles
+    4.7-5.4 s against 5.3-6.6 s (and half the CPU time), 300 particles 7.9-8.7 s
+    against 7.6-8.3 s, 1000 particles (500 scans) 13.5 s against 8.5-9.1 s; RB at 100
+    particles, whole log, the same either way; Intel ``srupf-gm`` filter loop, 30
+    particles 20.6-22.5 s against 21.8-26.6 s, 100 particles 61-68 s against 64-70 s
+    (not measured above 100). The GMapping-style filter is faster on two threads
+    (Intel, 30 particles: 20.5-23.3 s on one, 15.7-19.0 s on two): its scan matcher's
+    kernels are large enough to share.
     """
-    return 1 if particles < SINGLE_THREAD_BELOW else None
+    limit = SINGLE_THREAD_MAX_PARTICLES.get(algorithm)
+    return 1 if limit is not None and particles <= limit else None
 
 
 def _parse_threads(value: Any, source: str) -> int | None:
@@ -133,11 +138,13 @@ def _parse_threads(value: Any, source: str) -> int | None:
     return count
 
 
-def set_threads(threads: int | str | None, particles: int) -> dict[str, Any]:
+def set_threads(threads: int | str | None, algorithm: str, particles: int) -> dict[str, Any]:
     """Size XLA's CPU thread pool for this process before its CPU backend starts.
 
     ``threads``: a count, ``"all"`` (or 0) for XLA's default, or ``None``: then
-    ``$JAXSLAM_THREADS``, else a ``NPROC`` the user set, else :func:`auto_threads`.
+    ``$JAXSLAM_THREADS``, else a ``NPROC`` the user set, else :func:`auto_threads` of
+    ``algorithm`` (a ``jaxslam run`` name: ``srupf-gm``, ``erb-upf``, ...) and
+    ``particles``.
     XLA reads the pool size from the environment variable ``NPROC`` once, when the
     CPU backend starts (its ``DefaultThreadPoolSize``), so this sets ``NPROC`` and has
     no effect once any JAX computation has run in the process: then nothing changes
@@ -165,7 +172,7 @@ def set_threads(threads: int | str | None, particles: int) -> dict[str, Any]:
     elif os.environ.get("NPROC", "").strip():
         return record(_parse_threads(os.environ["NPROC"], "NPROC"), "NPROC")
     else:
-        count, source = auto_threads(particles), "auto"
+        count, source = auto_threads(algorithm, particles), "auto"
     if count is None:
         os.environ.pop("NPROC", None)
     else:

@@ -307,7 +307,7 @@ def run(
     ``float64`` runs the filter in double precision: JAX's 64-bit mode is switched on
     for this run only (``jax.enable_x64``), the default float32 path never touches it.
     ``threads`` sizes XLA's CPU thread pool (a count or ``"all"``; default
-    ``$JAXSLAM_THREADS``, else one thread below 300 particles):
+    ``$JAXSLAM_THREADS``, else :func:`jaxslam.compiler.auto_threads`):
     :func:`jaxslam.compiler.set_threads`, which can act only before the process's
     first JAX computation; ``summary.json`` ``xla_threads`` says what was in effect.
     """
@@ -337,7 +337,7 @@ def run(
         raise RunError("--rerun/--rerun-spawn cannot be combined with --checkpoint-every/--resume")
     particles = particles or DEFAULT_PARTICLES[kind]
     try:
-        xla_threads = set_threads(threads, particles)
+        xla_threads = set_threads(threads, algorithm, particles)
     except ValueError as err:
         raise RunError(str(err)) from None
     dtype = jnp.float64 if float64 else jnp.float32

@@ -77,38 +77,39 @@ def fresh_backend(monkeypatch):
 
 
 def test_set_threads_precedence(fresh_backend, monkeypatch):
-    below, above = compiler.SINGLE_THREAD_BELOW - 1, compiler.SINGLE_THREAD_BELOW
-    assert compiler.auto_threads(below) == 1 and compiler.auto_threads(above) is None
-    assert compiler.set_threads(None, 100) == {"threads": 1, "source": "auto"}
+    for algorithm, limit in compiler.SINGLE_THREAD_MAX_PARTICLES.items():
+        assert compiler.auto_threads(algorithm, limit) == 1 and compiler.auto_threads(algorithm, limit + 1) is None
+    assert compiler.auto_threads("gmapping", 1) is None
+    assert compiler.set_threads(None, "erb-upf", 100) == {"threads": 1, "source": "auto"}
     assert os.environ["NPROC"] == "1"
     monkeypatch.delenv("NPROC")  # (else it counts as the user's own, below)
-    assert compiler.set_threads(None, 1000) == {"threads": "all", "source": "auto"}
+    assert compiler.set_threads(None, "erb-upf", 1000) == {"threads": "all", "source": "auto"}
     assert "NPROC" not in os.environ
     monkeypatch.setenv(compiler.THREADS_ENV, "all")
-    assert compiler.set_threads(None, 100) == {"threads": "all", "source": "JAXSLAM_THREADS"}
+    assert compiler.set_threads(None, "erb-upf", 100) == {"threads": "all", "source": "JAXSLAM_THREADS"}
     assert "NPROC" not in os.environ
     # the argument wins over the environment
-    assert compiler.set_threads(2, 100) == {"threads": 2, "source": "argument"}
+    assert compiler.set_threads(2, "erb-upf", 100) == {"threads": 2, "source": "argument"}
     assert os.environ["NPROC"] == "2"
     monkeypatch.delenv("NPROC")
-    assert compiler.set_threads("0", 100) == {"threads": "all", "source": "argument"}
+    assert compiler.set_threads("0", "erb-upf", 100) == {"threads": "all", "source": "argument"}
     monkeypatch.delenv(compiler.THREADS_ENV)
     # a user's own NPROC is kept
     monkeypatch.setenv("NPROC", "3")
-    assert compiler.set_threads(None, 10) == {"threads": 3, "source": "NPROC"}
+    assert compiler.set_threads(None, "erb-upf", 10) == {"threads": 3, "source": "NPROC"}
     assert os.environ["NPROC"] == "3"
     for bad in ("-1", "two", 1.5):
         with pytest.raises(ValueError, match="threads must be a positive thread count or 'all'"):
-            compiler.set_threads(bad, 100)
+            compiler.set_threads(bad, "erb-upf", 100)
     monkeypatch.setenv(compiler.THREADS_ENV, "x")
     with pytest.raises(ValueError, match="JAXSLAM_THREADS must be"):
-        compiler.set_threads(None, 100)
+        compiler.set_threads(None, "erb-upf", 100)
 
 
 def test_set_threads_after_the_backend_started_changes_nothing(monkeypatch):
     jnp.zeros(1).block_until_ready()  # the backend of this process has started
     monkeypatch.delenv("NPROC", raising=False)
-    assert compiler.set_threads(1, 100) == {"threads": "all", "source": "backend already started"}
+    assert compiler.set_threads(1, "erb-upf", 100) == {"threads": "all", "source": "backend already started"}
     assert "NPROC" not in os.environ
 
 
@@ -116,7 +117,7 @@ def _xla_threads_in_subprocess(threads) -> int:
     code = (
         "import os, jax.numpy as jnp\n"
         "from jaxslam.compiler import set_threads\n"
-        f"set_threads({threads!r}, 100)\n"
+        f"set_threads({threads!r}, 'erb-upf', 100)\n"
         "jnp.zeros(3).block_until_ready()\n"
         "names = [open(f'/proc/self/task/{t}/comm').read().strip() for t in os.listdir('/proc/self/task')]\n"
         "print(sum('XLAEigen' in n for n in names))\n"
