@@ -137,8 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "$JAXSLAM_CACHE_DIR, else $XDG_CACHE_HOME/jaxslam/jax or ~/.cache/jaxslam/jax)")
     run.add_argument("--threads", default=None, metavar="N|all",
                      help="threads of XLA's CPU runtime; default $JAXSLAM_THREADS, else one for the landmark "
-                          "filters up to 300 particles and srupf-gm up to 100 (faster there: their kernels are "
-                          "too small to share), all cores otherwise")
+                          "filters up to 300 particles (faster there: their kernels are too small to share), all "
+                          "cores otherwise")
     run.add_argument("--no-cache", action="store_true",
                      help="do not use the compilation cache nor the parsed-log cache (same as JAXSLAM_CACHE_DIR=off)")
 

@@ -99,27 +99,31 @@ THREADS_ENV = "JAXSLAM_THREADS"
 """Threads of XLA's CPU runtime for a run: a count, or ``all`` (XLA's default, every
 core); unset: :func:`auto_threads`. An explicit ``threads`` argument wins."""
 
-SINGLE_THREAD_MAX_PARTICLES = {"erb-upf": 300, "rb-upf": 300, "srupf-gm": 100}
+SINGLE_THREAD_MAX_PARTICLES = {"erb-upf": 300, "rb-upf": 300}
 """Filters that :func:`auto_threads` runs on one XLA thread, up to how many particles."""
 
 
 def auto_threads(algorithm: str, particles: int) -> int | None:
     """The thread count jaxslam picks: one for the filters and particle counts of
-    :data:`SINGLE_THREAD_MAX_PARTICLES`, else ``None`` (XLA's default: every core).
+    :data:`SINGLE_THREAD_MAX_PARTICLES` (the landmark filters up to 300 particles),
+    else ``None`` (XLA's default: every core).
 
-    At these sizes a filter step is hundreds of small kernels (Victoria Park, ERB: about
-    700 per scan, each over a few hundred to a few thousand numbers), and XLA's CPU
-    runtime spreads independent kernels and the iterations of each over its threads;
-    the hand-overs cost more than the second core gives. Measured on a 2-core Xeon VM,
-    alternating one thread with XLA's default in one sitting, the same results bit for
-    bit (the README has the table): Victoria Park ERB, 2000 scans, 100 particles
-    4.7-5.4 s against 5.3-6.6 s (and half the CPU time), 300 particles 7.9-8.7 s
-    against 7.6-8.3 s, 1000 particles (500 scans) 13.5 s against 8.5-9.1 s; RB at 100
-    particles, whole log, the same either way; Intel ``srupf-gm`` filter loop, 30
-    particles 20.6-22.5 s against 21.8-26.6 s, 100 particles 61-68 s against 64-70 s
-    (not measured above 100). The GMapping-style filter is faster on two threads
-    (Intel, 30 particles: 20.5-23.3 s on one, 15.7-19.0 s on two): its scan matcher's
-    kernels are large enough to share.
+    At these sizes a landmark filter's step is hundreds of small kernels (Victoria
+    Park, ERB: about 700 per scan, each over a few hundred to a few thousand numbers),
+    and XLA's CPU runtime spreads independent kernels and the iterations of each over
+    its threads; the hand-overs cost more than the second core gives. Measured on a
+    2-core Xeon VM, alternating one thread with XLA's default in one sitting, the same
+    results bit for bit (the README has the table): Victoria Park ERB, 2000 scans, 100
+    particles 4.7-5.4 s against 5.3-6.6 s (and half the CPU time), 300 particles
+    7.9-8.7 s against 7.6-8.3 s, 1000 particles (500 scans) 13.5 s against 8.5-9.1 s;
+    RB at 100 particles, whole log, the same either way.
+
+    The grid filters keep every core: their kernels depend on the log as much as on
+    the particle count. ``srupf-gm`` at 30 particles was faster on one thread on Intel
+    (filter loop 20.6-22.5 s against 21.8-26.6 s) but slower on MIT Killian, whose 50 m
+    rays and larger maps make bigger kernels (51.3-52.2 s against 40.6-44.7 s); the
+    GMapping-style filter was slower on one thread on Intel (20.5-23.3 s against
+    15.7-19.0 s).
     """
     limit = SINGLE_THREAD_MAX_PARTICLES.get(algorithm)
     return 1 if limit is not None and particles <= limit else None

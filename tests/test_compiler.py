@@ -79,7 +79,8 @@ def fresh_backend(monkeypatch):
 def test_set_threads_precedence(fresh_backend, monkeypatch):
     for algorithm, limit in compiler.SINGLE_THREAD_MAX_PARTICLES.items():
         assert compiler.auto_threads(algorithm, limit) == 1 and compiler.auto_threads(algorithm, limit + 1) is None
-    assert compiler.auto_threads("gmapping", 1) is None
+    for grid in ("gmapping", "srupf-gm"):
+        assert compiler.auto_threads(grid, 1) is None
     assert compiler.set_threads(None, "erb-upf", 100) == {"threads": 1, "source": "auto"}
     assert os.environ["NPROC"] == "1"
     monkeypatch.delenv("NPROC")  # (else it counts as the user's own, below)
