@@ -142,6 +142,10 @@ def _parse_threads(value: Any, source: str) -> int | None:
     return count
 
 
+_STARTED_WITH: dict[str, int | None] | None = None
+"""The pool :func:`set_threads` started XLA's backend with (``threads``: None for all)."""
+
+
 def set_threads(threads: int | str | None, algorithm: str, particles: int) -> dict[str, Any]:
     """Size XLA's CPU thread pool for this process before its CPU backend starts.
 
@@ -150,10 +154,12 @@ def set_threads(threads: int | str | None, algorithm: str, particles: int) -> di
     ``algorithm`` (a ``jaxslam run`` name: ``srupf-gm``, ``erb-upf``, ...) and
     ``particles``.
     XLA reads the pool size from the environment variable ``NPROC`` once, when the
-    CPU backend starts (its ``DefaultThreadPoolSize``), so this sets ``NPROC`` and has
-    no effect once any JAX computation has run in the process: then nothing changes
-    and the returned record says so. The pool size is part of the compiled program's
-    cache key: a run with another count compiles (and caches) its programs once.
+    CPU backend starts (its ``DefaultThreadPoolSize``), so this sets ``NPROC``, starts
+    the backend (``jax.devices()``) and puts ``NPROC`` back as it was: the processes
+    this one starts later do not inherit the choice. Once any JAX computation has run
+    in the process it has no effect: then nothing changes and the returned record says
+    so. The pool size is part of the compiled program's cache key: a run with another
+    count compiles (and caches) its programs once.
 
     Returns:
         ``{"threads": count or "all", "source": ...}`` for ``summary.json``; the source
@@ -165,7 +171,10 @@ def set_threads(threads: int | str | None, algorithm: str, particles: int) -> di
     def record(count, source):
         return {"threads": "all" if count is None else count, "source": source}
 
+    global _STARTED_WITH
     if xla_bridge.backends_are_initialized():
+        if _STARTED_WITH is not None:
+            return record(_STARTED_WITH["threads"], "backend already started")
         current = os.environ.get("NPROC")
         return record(int(current) if current and current.isdigit() and int(current) > 0 else None,
                       "backend already started")
@@ -177,8 +186,19 @@ def set_threads(threads: int | str | None, algorithm: str, particles: int) -> di
         return record(_parse_threads(os.environ["NPROC"], "NPROC"), "NPROC")
     else:
         count, source = auto_threads(algorithm, particles), "auto"
+    import jax
+
+    previous = os.environ.get("NPROC")
     if count is None:
         os.environ.pop("NPROC", None)
     else:
         os.environ["NPROC"] = str(count)
+    try:
+        jax.devices()  # the CPU backend starts now and reads NPROC
+    finally:
+        if previous is None:
+            os.environ.pop("NPROC", None)
+        else:
+            os.environ["NPROC"] = previous
+    _STARTED_WITH = {"threads": count}
     return record(count, source)

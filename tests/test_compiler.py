@@ -68,37 +68,47 @@ def test_jit_applies_and_records_options(monkeypatch):
 @pytest.fixture
 def fresh_backend(monkeypatch):
     """set_threads as if no JAX computation had run yet in this process (it has: the
-    real pool is not touched; only the environment variables are checked)."""
+    real pool is not touched). Returns a list of the ``NPROC`` each backend start saw
+    (``None``: unset), which is what XLA reads."""
+    import jax
     from jax._src import xla_bridge
 
+    seen = []
     monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
+    monkeypatch.setattr(jax, "devices", lambda *a, **k: seen.append(os.environ.get("NPROC")))
+    monkeypatch.setattr(compiler, "_STARTED_WITH", None)
     for name in (compiler.THREADS_ENV, "NPROC"):
         monkeypatch.delenv(name, raising=False)
+    return seen
 
 
 def test_set_threads_precedence(fresh_backend, monkeypatch):
+    seen = fresh_backend
     for algorithm, limit in compiler.SINGLE_THREAD_MAX_PARTICLES.items():
         assert compiler.auto_threads(algorithm, limit) == 1 and compiler.auto_threads(algorithm, limit + 1) is None
     for grid in ("gmapping", "srupf-gm"):
         assert compiler.auto_threads(grid, 1) is None
     assert compiler.set_threads(None, "erb-upf", 100) == {"threads": 1, "source": "auto"}
-    assert os.environ["NPROC"] == "1"
-    monkeypatch.delenv("NPROC")  # (else it counts as the user's own, below)
+    assert seen[-1] == "1"
+    assert "NPROC" not in os.environ  # put back: child processes do not inherit it
     assert compiler.set_threads(None, "erb-upf", 1000) == {"threads": "all", "source": "auto"}
-    assert "NPROC" not in os.environ
+    assert seen[-1] is None
     monkeypatch.setenv(compiler.THREADS_ENV, "all")
     assert compiler.set_threads(None, "erb-upf", 100) == {"threads": "all", "source": "JAXSLAM_THREADS"}
-    assert "NPROC" not in os.environ
+    assert seen[-1] is None
     # the argument wins over the environment
     assert compiler.set_threads(2, "erb-upf", 100) == {"threads": 2, "source": "argument"}
-    assert os.environ["NPROC"] == "2"
-    monkeypatch.delenv("NPROC")
+    assert seen[-1] == "2"
     assert compiler.set_threads("0", "erb-upf", 100) == {"threads": "all", "source": "argument"}
+    assert seen[-1] is None
     monkeypatch.delenv(compiler.THREADS_ENV)
-    # a user's own NPROC is kept
+    # a user's own NPROC is kept, and an argument overrides it only for the backend start
     monkeypatch.setenv("NPROC", "3")
+    starts = len(seen)
     assert compiler.set_threads(None, "erb-upf", 10) == {"threads": 3, "source": "NPROC"}
-    assert os.environ["NPROC"] == "3"
+    assert os.environ["NPROC"] == "3" and len(seen) == starts  # left to XLA as it is
+    assert compiler.set_threads(1, "erb-upf", 10) == {"threads": 1, "source": "argument"}
+    assert seen[-1] == "1" and os.environ["NPROC"] == "3"
     for bad in ("-1", "two", 1.5):
         with pytest.raises(ValueError, match="threads must be a positive thread count or 'all'"):
             compiler.set_threads(bad, "erb-upf", 100)
@@ -110,8 +120,11 @@ def test_set_threads_precedence(fresh_backend, monkeypatch):
 def test_set_threads_after_the_backend_started_changes_nothing(monkeypatch):
     jnp.zeros(1).block_until_ready()  # the backend of this process has started
     monkeypatch.delenv("NPROC", raising=False)
+    monkeypatch.setattr(compiler, "_STARTED_WITH", None)  # started by JAX itself: XLA's default
     assert compiler.set_threads(1, "erb-upf", 100) == {"threads": "all", "source": "backend already started"}
     assert "NPROC" not in os.environ
+    monkeypatch.setattr(compiler, "_STARTED_WITH", {"threads": 1})  # started by set_threads
+    assert compiler.set_threads("all", "erb-upf", 1000) == {"threads": 1, "source": "backend already started"}
 
 
 def _xla_threads_in_subprocess(threads) -> int:
@@ -121,6 +134,7 @@ def _xla_threads_in_subprocess(threads) -> int:
         f"set_threads({threads!r}, 'erb-upf', 100)\n"
         "jnp.zeros(3).block_until_ready()\n"
         "names = [open(f'/proc/self/task/{t}/comm').read().strip() for t in os.listdir('/proc/self/task')]\n"
+        "assert 'NPROC' not in os.environ  # not left for child processes\n"
         "print(sum('XLAEigen' in n for n in names))\n"
     )
     env = {k: v for k, v in os.environ.items() if k not in ("NPROC", compiler.THREADS_ENV)}
