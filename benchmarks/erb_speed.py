@@ -10,6 +10,10 @@ resampling amplifies: compare the GPS error with the seed spread of
 
     python benchmarks/erb_speed.py [--baseline 57eaeea] [--particles 100] [--repeats 2] [--steps N]
 
+``--baseline ''`` times this tree alone (the cost against the particle count). Each
+child sizes XLA's thread pool as ``jaxslam run`` does
+(:func:`jaxslam.compiler.set_threads`; ``xla_threads`` in the rows).
+
 Writes ``benchmarks/results/erb_speed.json``.
 """
 
@@ -34,14 +38,19 @@ CHILD = """
 import json, sys
 import jaxslam
 assert jaxslam.__file__.startswith(sys.argv[4]), (jaxslam.__file__, sys.argv[4])
+algorithm, particles, steps = sys.argv[1], int(sys.argv[2]), (None if sys.argv[3] == "all" else int(sys.argv[3]))
+try:  # XLA's thread pool as `jaxslam run` sizes it (revisions before jaxslam.compiler.set_threads: XLA's default)
+    from jaxslam.compiler import set_threads
+    threads = set_threads(None, algorithm, particles)["threads"]
+except ImportError:
+    threads = "default"
 from jaxslam.datasets import victoria_park
 from jaxslam.feature.experiment import run_landmark_slam
 from jaxslam.metrics.gps import gps_error
-algorithm, particles, steps = sys.argv[1], int(sys.argv[2]), (None if sys.argv[3] == "all" else int(sys.argv[3]))
 seq = victoria_park.load_sequence("detections", max_range=30.0, max_steps=steps)
 res = run_landmark_slam(seq, algorithm, particles=particles, seed=0, progress=False)
 err = gps_error(res.times, res.trajectory, seq.gps_times, seq.gps_xy)
-print(json.dumps(dict(wall_s=res.wall_s, compile_s=res.compile_s, steps=res.steps, gps_mean_m=err["gps_mean_m"])))
+print(json.dumps(dict(wall_s=res.wall_s, compile_s=res.compile_s, steps=res.steps, gps_mean_m=err["gps_mean_m"], xla_threads=threads)))
 """
 
 
@@ -65,7 +74,9 @@ def main() -> None:
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        trees = {"baseline " + args.baseline: export(args.baseline, Path(tmp)), "this tree": ROOT}
+        trees = {"this tree": ROOT}
+        if args.baseline:
+            trees = {"baseline " + args.baseline: export(args.baseline, Path(tmp)), **trees}
         for n in args.particles:
             for repeat in range(args.repeats):
                 for label, tree in trees.items():
@@ -86,7 +97,7 @@ def main() -> None:
                     write_json(args.name, dict(dataset="victoria-park", algorithm=args.algorithm,
                                                baseline=args.baseline, steps=args.steps, runs=rows, complete=False))
     ratios = {}
-    for n in args.particles:
+    for n in args.particles if args.baseline else []:
         base = min(r["wall_s"] for r in rows if r["particles"] == n and r["revision"] != "this tree")
         new = min(r["wall_s"] for r in rows if r["particles"] == n and r["revision"] == "this tree")
         base_c = min(r["compile_s"] for r in rows if r["particles"] == n and r["revision"] != "this tree")
@@ -94,7 +105,8 @@ def main() -> None:
         ratios[n] = dict(filter_speedup=base / new, compile_ratio=new_c / base_c, best_wall_s=new, baseline_best_wall_s=base)
     path = write_json(args.name, dict(dataset="victoria-park", algorithm=args.algorithm, baseline=args.baseline,
                                       steps=args.steps, runs=rows, ratios=ratios, complete=True))
-    print_table(rows, ["revision", "particles", "repeat", "wall_s", "compile_s", "us_per_particle_scan", "gps_mean_m"])
+    print_table(rows, ["revision", "particles", "repeat", "xla_threads", "wall_s", "compile_s", "us_per_particle_scan",
+                       "gps_mean_m"])
     print("ratios (best of repeats):", ratios)
     print(f"wrote {path}")
 

@@ -108,8 +108,8 @@ def auto_threads(algorithm: str, particles: int) -> int | None:
     :data:`SINGLE_THREAD_MAX_PARTICLES` (the landmark filters up to 300 particles),
     else ``None`` (XLA's default: every core).
 
-    At these sizes a landmark filter's step is hundreds of small kernels (Victoria
-    Park, ERB: about 700 per scan, each over a few hundred to a few thousand numbers),
+    At these sizes a landmark filter's step is many small kernels (Victoria
+    Park, ERB: about a thousand per scan, each over a few hundred to a few thousand numbers),
     and XLA's CPU runtime spreads independent kernels and the iterations of each over
     its threads; the hand-overs cost more than the second core gives. Measured on a
     2-core Xeon VM, alternating one thread with XLA's default in one sitting, the same
