@@ -85,6 +85,19 @@ def run_in_subprocess(spec: dict, timeout: float = 3600.0, tree: str | os.PathLi
     return json.loads(lines[-1])
 
 
+def raw_scan_indices(raw, ranges) -> "np.ndarray":
+    """Index in the raw log ``raw`` (a :class:`jaxslam.datasets.carmen.CarmenLog`) of each
+    scan given by its range vector, matched byte for byte (the first such raw scan); -1
+    where none. GMapping's corrected logs, and the perturbed logs written from them,
+    copy the raw log's range readings unchanged."""
+    import numpy as np
+
+    by_ranges: dict[bytes, int] = {}
+    for index in range(raw.num_scans):
+        by_ranges.setdefault(raw.ranges[index].tobytes(), index)
+    return np.array([by_ranges.get(np.asarray(r).tobytes(), -1) for r in ranges], np.int64)
+
+
 def save_json(path: Path, payload) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(payload, indent=2, sort_keys=True))

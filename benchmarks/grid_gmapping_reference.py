@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from grid_common import RESULTS, machine_info, save_json
+from grid_common import RESULTS, machine_info, raw_scan_indices, save_json
 
 from jaxslam.datasets.carmen import load_dataset_log
 from jaxslam.datasets.geometry import se2_compose, se2_inverse
@@ -33,10 +33,7 @@ def corrected_trajectory(name: str) -> tuple[np.ndarray, np.ndarray, dict]:
     """``(scan_times, poses (S, 3), counts)`` for every scan of the raw log ``name``."""
     raw = load_dataset_log(name)
     corrected = load_dataset_log(CORRECTED[name])
-    by_ranges: dict[bytes, int] = {}
-    for index in range(raw.num_scans):
-        by_ranges.setdefault(raw.ranges[index].tobytes(), index)
-    found = np.array([by_ranges.get(corrected.ranges[i].tobytes(), -1) for i in range(corrected.num_scans)])
+    found = raw_scan_indices(raw, corrected.ranges)
     if np.any(found < 0):
         raise RuntimeError(f"{int(np.sum(found < 0))} corrected scans of {name} are not in the raw log")
     order = np.argsort(found, kind="stable")

@@ -1,0 +1,89 @@
+"""benchmarks/grid_robustness.py: a perturbed log made from a raw benchmark log is scored
+on the raw log's relations: its scans found in the raw log by their range readings
+(``grid_common.raw_scan_indices``), laser poses turned into robot poses, and the
+relation error checked against an independent computation by hand."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from jaxslam.metrics.relations import Relations
+
+_BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
+sys.path.insert(0, str(_BENCH))
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, _BENCH / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+robustness = _load("grid_robustness")
+grid_common = _load("grid_common")
+
+
+def _raw(n: int = 6, offset=(0.0, 0.0, 0.0)) -> SimpleNamespace:
+    """A raw log: n scans of 4 beams with distinct readings, stamps 0.2 s apart."""
+    ranges = (np.arange(n * 4, dtype=np.float32).reshape(n, 4) + 1.0) * 0.25
+    return SimpleNamespace(num_scans=n, ranges=ranges, scan_times=1000.0 + 0.2 * np.arange(n),
+                           laser_offset=np.asarray(offset))
+
+
+def test_scans_are_found_by_their_readings():
+    raw = _raw()
+    other = np.stack([raw.ranges[4], raw.ranges[1], raw.ranges[1] + 0.01])
+    np.testing.assert_array_equal(grid_common.raw_scan_indices(raw, other), [4, 1, -1])
+
+
+def test_too_few_scans_found_gives_no_benchmark():
+    raw = _raw()
+    log = SimpleNamespace(ranges=np.concatenate([raw.ranges[:3], raw.ranges[:3] + 0.01]))
+    assert robustness.benchmark_reference(raw, None, log) is None
+
+
+def _relation(a: np.ndarray, b: np.ndarray) -> list[float]:
+    """Pose b in the frame of pose a, written out."""
+    c, s = np.cos(a[2]), np.sin(a[2])
+    d = b[:2] - a[:2]
+    return [c * d[0] + s * d[1], -s * d[0] + c * d[1], b[2] - a[2]]
+
+
+def test_benchmark_score_equals_the_relation_error_by_hand():
+    offset = np.array([-0.3, 0.1, 0.2])  # laser pose in the robot frame
+    raw = _raw(offset=offset)
+    kept = np.array([0, 2, 3, 5])  # the perturbed log holds these raw scans, in this order
+    log = SimpleNamespace(ranges=raw.ranges[kept])
+    rng = np.random.default_rng(0)
+    laser = np.cumsum(rng.normal(size=(len(kept), 3)) * [1.0, 1.0, 0.3], axis=0)
+    # robot pose r with r (+) offset = laser pose, by hand
+    robot = []
+    for x, y, th in laser:
+        phi = th - offset[2]
+        c, s = np.cos(phi), np.sin(phi)
+        robot.append([x - (c * offset[0] - s * offset[1]), y - (s * offset[0] + c * offset[1]), phi])
+    robot = np.array(robot)
+    t = raw.scan_times
+    # exact, 0.5 m off along x, and one relation to a scan the perturbed log lacks
+    true = np.array([_relation(robot[0], robot[1]), _relation(robot[1], robot[3]), [1.0, 0.0, 0.0]])
+    true[1, 0] += 0.5
+    relations = Relations(path=None, t1=np.array([t[0], t[2], t[3]]), t2=np.array([t[2], t[5], t[4]]),
+                          deltas=true, lines=np.arange(1, 4))
+    bench = robustness.benchmark_reference(raw, relations, log)
+    np.testing.assert_array_equal(bench[0], t[kept])
+    got = robustness.score_benchmark(bench, laser)
+    assert got["bench_n_relations"] == 2
+    assert got["bench_mean_m"] == pytest.approx(0.25, abs=1e-9)
+    assert got["bench_max_m"] == pytest.approx(0.5, abs=1e-9)
+    # a run cut short scores the scans it has; a longer trajectory is an error
+    assert robustness.score_benchmark(bench, laser[:2])["bench_mean_m"] == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ValueError, match="not one pose per scan"):
+        robustness.score_benchmark(bench, np.zeros((5, 3)))
+    assert robustness.score_benchmark(None, laser) == {}
