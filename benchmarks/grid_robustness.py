@@ -280,13 +280,14 @@ def prepare_logs(args, work: Path) -> list[dict]:
                             "source": name, "carmen": log, "relations": rel, "short": None})
     for name in [n for n in args.perturbed.split(",") if n]:
         raw = load_dataset_log(name) if name in DATASET_RELATIONS else None
+        raw_relations = None if raw is None else load_dataset_relations(name)
         for level in args.levels.split(","):
             for seed in seeds:
                 made = make_perturbed_log(name, level, seed, work / "logs")
                 from jaxslam.datasets.carmen import load_carmen
 
                 log = load_carmen(made.log_path)
-                bench = None if raw is None else benchmark_reference(raw, load_dataset_relations(name), log)
+                bench = None if raw is None else benchmark_reference(raw, raw_relations, log)
                 entries.append({
                     "log": f"{name}-{level}", "kind": "perturbed", "seed": seed,
                     "source": str(made.log_path), "carmen": log, "relations": made.relations,
