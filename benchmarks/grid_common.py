@@ -98,6 +98,18 @@ def raw_scan_indices(raw, ranges) -> "np.ndarray":
     return np.array([by_ranges.get(np.asarray(r).tobytes(), -1) for r in ranges], np.int64)
 
 
+def robot_poses(laser_poses, laser_offset) -> "np.ndarray":
+    """Robot poses ``r`` with ``r (+) laser_offset`` = ``laser_poses (S, 3)``: the laser
+    poses of a corrected log or a run, in the robot frame the benchmark relations use."""
+    import numpy as np
+
+    from jaxslam.datasets.geometry import se2_compose, se2_inverse
+
+    laser_poses = np.asarray(laser_poses, np.float64)
+    back = se2_inverse(np.asarray(laser_offset, np.float64))
+    return se2_compose(laser_poses, np.broadcast_to(back, laser_poses.shape))
+
+
 def save_json(path: Path, payload) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(payload, indent=2, sort_keys=True))

@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from grid_common import RESULTS, machine_info, raw_scan_indices, save_json
+from grid_common import RESULTS, machine_info, raw_scan_indices, robot_poses, save_json
 
 from jaxslam.datasets.carmen import load_dataset_log
 from jaxslam.datasets.geometry import se2_compose, se2_inverse
@@ -40,8 +40,7 @@ def corrected_trajectory(name: str) -> tuple[np.ndarray, np.ndarray, dict]:
     keyframes, laser_poses = found[order], corrected.laser_poses[order]
     keep = np.concatenate([[True], np.diff(keyframes) > 0])  # a repeated scan keeps its first pose
     keyframes, laser_poses = keyframes[keep], laser_poses[keep]
-    back = np.broadcast_to(se2_inverse(np.asarray(raw.laser_offset, np.float64)), laser_poses.shape)
-    robot = se2_compose(laser_poses, back)
+    robot = robot_poses(laser_poses, raw.laser_offset)
     if keyframes[0] != 0:  # before GMapping's first scan: raw odometry from its pose
         keyframes = np.concatenate([[0], keyframes])
         robot = np.concatenate([robot[:1], robot], 0)

@@ -240,23 +240,22 @@ def score_benchmark(bench, trajectory) -> dict[str, Any]:
     (:func:`benchmark_reference`); empty without them."""
     if bench is None:
         return {}
-    from jaxslam.datasets.geometry import se2_compose, se2_inverse
-    from jaxslam.metrics.relations import relation_errors
+    from grid_common import robot_poses
+
+    from jaxslam.metrics.relations import relations_metric
 
     stamps, relations, offset = bench
     trajectory = np.asarray(trajectory, np.float64)
     if trajectory.ndim != 2 or trajectory.shape[1] != 3 or trajectory.shape[0] > stamps.shape[0]:
         raise ValueError(f"trajectory {trajectory.shape} is not one pose per scan of the log ({stamps.shape[0]})")
     stamps = stamps[: trajectory.shape[0]]
-    robot = se2_compose(trajectory, np.broadcast_to(se2_inverse(offset), trajectory.shape))
     keep = np.isfinite(stamps)
-    errors = relation_errors(relations, stamps[keep], robot[keep])
-    trans = errors.trans[errors.matched]
-    if not trans.size:
+    metric = relations_metric(relations, stamps[keep], robot_poses(trajectory, offset)[keep])
+    if not metric["n_relations"]:
         return {"bench_n_relations": 0}
-    return {"bench_mean_m": float(trans.mean()), "bench_median_m": float(np.median(trans)),
-            "bench_max_m": float(trans.max()), "bench_over_0.5m": int(np.sum(trans > 0.5)),
-            "bench_n_relations": int(trans.size)}
+    return {"bench_mean_m": metric["trans_err_mean_m"], "bench_median_m": metric["trans_err_median_m"],
+            "bench_max_m": metric["trans_err_max_m"], "bench_over_0.5m": metric["n_trans_err_over_0_5m"],
+            "bench_n_relations": metric["n_relations"]}
 
 
 # ---------------------------------------------------------------------------
