@@ -6,19 +6,14 @@ a wrong noise level."""
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 
 from jaxslam.datasets import landmark_sim
 
-_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "erb_consistency.py"
-_spec = importlib.util.spec_from_file_location("erb_consistency", _PATH)
-erb_consistency = importlib.util.module_from_spec(_spec)
-sys.modules["erb_consistency"] = erb_consistency
-_spec.loader.exec_module(erb_consistency)
+from . import load_benchmark
+
+erb_consistency = load_benchmark("erb_consistency")
 
 
 def _sequences():

@@ -3,20 +3,14 @@ GMapping is not built. (Running GMapping itself is a benchmark, not a test.)"""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose
 
-_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "gmapping_cpp.py"
-_spec = importlib.util.spec_from_file_location("gmapping_cpp", _PATH)
-gmapping_cpp = importlib.util.module_from_spec(_spec)
-sys.modules["gmapping_cpp"] = gmapping_cpp  # dataclasses look their module up
-_spec.loader.exec_module(gmapping_cpp)
+from . import load_benchmark
+
+gmapping_cpp = load_benchmark("gmapping_cpp")
 
 
 def _odometry(n: int, rng: np.random.Generator) -> np.ndarray:

@@ -5,9 +5,6 @@ relation error checked against an independent computation by hand."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,19 +12,10 @@ import pytest
 
 from jaxslam.metrics.relations import Relations
 
-_BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
-sys.path.insert(0, str(_BENCH))
+from . import load_benchmark
 
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, _BENCH / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-robustness = _load("grid_robustness")
-grid_common = _load("grid_common")
+robustness = load_benchmark("grid_robustness")
+grid_common = load_benchmark("grid_common")
 
 
 def _raw(n: int = 6, offset=(0.0, 0.0, 0.0)) -> SimpleNamespace:

@@ -3,16 +3,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
-_BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
-sys.path.insert(0, str(_BENCH))
-_spec = importlib.util.spec_from_file_location("grid_robustness_merge", _BENCH / "grid_robustness_merge.py")
-merge_module = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(merge_module)
+from . import load_benchmark
+
+merge_module = load_benchmark("grid_robustness_merge")
 
 
 def _part(path: Path, runs: list[tuple[str, str, int, float]]) -> Path:
