@@ -36,8 +36,10 @@ Logs:
   reference and not in the second.
 
 Every filter uses the same defaults on every log: ``run_grid_slam``'s default
-parameters and configuration (every scan tracked, GMapping's keyframe rule of 1 m,
-0.5 rad on the tracked motion, :mod:`jaxslam.grid.tracking`); GMapping C++ its own
+parameters and configuration (every scan tracked, the filter's keyframe rule on the
+tracked motion, :func:`jaxslam.grid.types.default_keyframes`: 0.5 m / 0.5 rad for
+``srupf-gm``, GMapping's 1 m / 0.5 rad for ``gmapping``; runs before the stress test of
+``grid_stress.py`` used 1 m for both, :mod:`jaxslam.grid.tracking`); GMapping C++ its own
 defaults. GMapping C++ gets the
 range limit jaxslam's reader took for the log, minus 0.01 (slam_gmapping's rule), and
 runs at the script's own niceness, like the jaxslam workers (run the script under

@@ -98,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "`jaxslam run --list-params --algorithm A` lists names, units and defaults")
     run.add_argument("--linear-update", type=float, default=None, metavar="M",
                      help="laser data: a scan is a keyframe after this much tracked travel (GMapping "
-                          "linearUpdate; default 1.0)")
+                          "linearUpdate; default 0.5 for srupf-gm, GMapping's 1.0 for gmapping)")
     run.add_argument("--angular-update", type=float, default=None, metavar="RAD",
                      help="laser data: ... or this much tracked rotation (angularUpdate; default 0.5)")
     run.add_argument("--temporal-update", type=float, default=None, metavar="S",

@@ -29,7 +29,15 @@ from jaxslam.grid import gmapping, srupf
 from jaxslam.grid.driver import DEFAULT_CHUNK, run_filter
 from jaxslam.grid.filter import best_particle
 from jaxslam.grid.paged import PagedLayout, pool_stats, stitch, window_side
-from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, Scan, default_params
+from jaxslam.grid.types import (
+    DEFAULT_KEYFRAMES,
+    GridSlamConfig,
+    GridSlamParams,
+    Odometry,
+    Scan,
+    default_keyframes,
+    default_params,
+)
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
 from jaxslam.metrics.trajectory_io import se2_between
@@ -38,16 +46,12 @@ ALGORITHMS = algorithms("laser")
 # Per-scan outputs of the run kept for every scan (the rest is kept per keyframe).
 PER_SCAN_KEYS = ("poses", "ancestors", "keyframe", "motion", "track_score", "track_accepted")
 
-# Keyframe rule (GMapping's linearUpdate m, angularUpdate rad, temporalUpdate s; a
-# negative temporal update disables it), applied inside the filter to the tracked
-# motion (jaxslam.grid.tracking), the same for every log.
-DEFAULT_KEYFRAMES = (1.0, 0.5, -1.0)
-
-
-def keyframe_rule(linear=None, angular=None, temporal=None) -> tuple[float, float, float]:
-    """``(linear, angular, temporal)`` thresholds: the given ones, else GMapping's defaults."""
+def keyframe_rule(linear=None, angular=None, temporal=None, algorithm: str = "srupf-gm") -> tuple[float, float, float]:
+    """``(linear, angular, temporal)`` thresholds: the given ones, else the filter's
+    defaults (:func:`jaxslam.grid.types.default_keyframes`), applied inside the filter
+    to the tracked motion (:mod:`jaxslam.grid.tracking`), the same for every log."""
     given = (linear, angular, temporal)
-    return tuple(float(b if g is None else g) for g, b in zip(given, DEFAULT_KEYFRAMES, strict=True))
+    return tuple(float(b if g is None else g) for g, b in zip(given, default_keyframes(algorithm), strict=True))
 
 
 @dataclasses.dataclass
@@ -230,8 +234,10 @@ def run_grid_slam(
         progress: show the progress bar.
         linear_update, angular_update, temporal_update: keyframe thresholds (m, rad,
             s; GMapping's linearUpdate, angularUpdate, temporalUpdate) on the tracked
-            motion (:mod:`jaxslam.grid.tracking`). ``None``: GMapping's defaults
-            1.0 m, 0.5 rad, no temporal update, for every log.
+            motion (:mod:`jaxslam.grid.tracking`). ``None``: the filter's defaults
+            (:func:`jaxslam.grid.types.default_keyframes`: 0.5 m for SRUPF-GM,
+            GMapping's 1 m for the GMapping-style filter; 0.5 rad; no temporal
+            update), for every log.
         resolution: cell size (m).
         margin: margin (m) around the odometry box for the starting page table
             (:func:`map_layout`; the maps grow beyond it when needed). ``None``: the
@@ -252,7 +258,7 @@ def run_grid_slam(
     """
     name = _dataset_name(log_or_sim)
     log = log_or_sim if isinstance(log_or_sim, CarmenLog) else load_dataset_log(log_or_sim)
-    rule = keyframe_rule(linear_update, angular_update, temporal_update)
+    rule = keyframe_rule(linear_update, angular_update, temporal_update, algorithm)
     scans = log.num_scans
     if max_keyframes is not None:
         # Cut the log where GMapping's rule on the odometry reaches this many keyframes

@@ -48,7 +48,7 @@ from jaxslam.datasets.geometry import se2_between
 from jaxslam.datasets.rosbag import interpolate_odometry
 from jaxslam.driver import step_keys
 from jaxslam.grid import driver, gmapping, srupf
-from jaxslam.grid.experiment import best_trajectory, make_config, map_layout
+from jaxslam.grid.experiment import best_trajectory, keyframe_rule, make_config, map_layout
 from jaxslam.grid.paged import stitch
 from jaxslam.grid.tracking import scan_trajectory
 from jaxslam.grid.types import GridSlamParams, Odometry, Scan, default_params
@@ -88,7 +88,8 @@ class StreamingGridSlam:
         config: overrides of the static :class:`GridSlamConfig` fields.
         linear_update, angular_update, temporal_update: keyframe rule on the tracked
             motion (m, rad, s; GMapping's linearUpdate, angularUpdate,
-            temporalUpdate; negative temporal disables it).
+            temporalUpdate; negative temporal disables it); ``None``: the filter's
+            default (:func:`jaxslam.grid.experiment.keyframe_rule`).
         resolution: cell size (m).
         margin: the starting page table covers the first pose plus this many metres
             (it grows, with one recompilation, if the robot goes further; a page-table
@@ -110,9 +111,9 @@ class StreamingGridSlam:
         seed: int = 0,
         params: dict[str, Any] | None = None,
         config: dict[str, Any] | None = None,
-        linear_update: float = 1.0,
-        angular_update: float = 0.5,
-        temporal_update: float = -1.0,
+        linear_update: float | None = None,
+        angular_update: float | None = None,
+        temporal_update: float | None = None,
         resolution: float = 0.05,
         margin: float = 50.0,
         max_points: int | None = None,
@@ -121,7 +122,7 @@ class StreamingGridSlam:
         self.algorithm = algorithm
         self.particles = int(particles)
         self.dtype = dtype
-        self.rule = (float(linear_update), float(angular_update), float(temporal_update))
+        self.rule = keyframe_rule(linear_update, angular_update, temporal_update, algorithm)
         self.resolution = float(resolution)
         self.margin = float(margin)
         overrides = dict(params or {})
