@@ -187,7 +187,7 @@ Intel runs (a relation off by more than 1 m) and 6 of 100 runs of Intel's last 2
 scans from one filter state (``benchmarks/grid_stress.py``): keyframe corrections of
 0.1-0.3 m along the narrow corridor south of the interior rooms, new ground whose
 walls the maps held from keyframes a metre apart. With 0.5 m: none of 100 such runs
-and none of 15 whole runs failed, MIT Killian scored 1.01-1.50 m against 1.52-2.06 m
+and none of 30 whole runs failed, MIT Killian scored 1.01-1.50 m against 1.52-2.06 m
 (seeds 0-2), the perturbed logs and FR079 about as before, and a run takes about a
 third longer (README, robustness section). The GMapping-style filter keeps
 :data:`GMAPPING_KEYFRAMES`: with 0.5 m it failed 3 of 10 Intel seeds against 2."""
