@@ -188,7 +188,8 @@ scans from one filter state (``benchmarks/grid_stress.py``): keyframe correction
 0.1-0.3 m along the narrow corridor south of the interior rooms, new ground whose
 walls the maps held from keyframes a metre apart. With 0.5 m: none of 100 such runs
 and none of 30 whole runs failed, MIT Killian scored 1.01-1.50 m against 1.52-2.06 m
-(seeds 0-2), the perturbed logs and FR079 about as before, and a run takes about a
+(seeds 0-2), FR079 0.037-0.038 m against 0.034-0.035 m, the perturbed logs as before
+or better but for one Seattle seed (0.144 against 0.062 m), and a run takes about a
 third longer (README, robustness section). The GMapping-style filter keeps
 :data:`GMAPPING_KEYFRAMES`: with 0.5 m it failed 3 of 10 Intel seeds against 2."""
 
