@@ -98,24 +98,11 @@ def checkpoints():
 
     class ResumeWithParams(Checkpoint):
         def load(self, carry_template):
-            # The carry is (state, params); the state's leaves come first in the file.
-            # Only they are restored (checked leaf by leaf), so a variant may even have
-            # other parameter fields (a code change run from a worktree).
-            import jax
-
-            state_template, params = carry_template
-            files = self._read()
-            meta = self._meta(files)
-            leaves, treedef = jax.tree_util.tree_flatten(state_template)
-            restored = []
-            for i, leaf in enumerate(leaves):
-                saved = files[f"carry_{i}"]
-                if saved.shape != np.shape(leaf) or saved.dtype != np.asarray(leaf).dtype:
-                    raise SystemExit(f"{self.path}: state array {i} is {saved.shape} {saved.dtype}, "
-                                     f"this run needs {np.shape(leaf)} {np.asarray(leaf).dtype}")
-                restored.append(jax.numpy.asarray(saved))
-            outputs = [files[f"out_{i}"] for i in range(meta["n_out"])]
-            return (jax.tree_util.tree_unflatten(treedef, restored), params), int(meta["done"]), outputs
+            # The carry is (state, params): restore the state only (its leaves come
+            # first), so a variant may even have other parameter fields (a code change
+            # run from a worktree).
+            state, done, outputs = self.load_leading(carry_template[0])
+            return (state, carry_template[1]), done, outputs
 
         def save(self, carry, done, output_leaves):
             pass
@@ -155,7 +142,7 @@ def score(relations, result) -> dict[str, Any]:
         "mean_m": metric["trans_err_mean_m"],
         "median_m": metric["trans_err_median_m"],
         "max_m": metric["trans_err_max_m"],
-        "over_0.5m": int(np.sum(trans > 0.5)),
+        "over_0.5m": metric["n_trans_err_over_0_5m"],
         "over_1m": int(np.sum(trans > FAIL_M)),
         "n_relations": metric["n_relations"],
     }

@@ -117,6 +117,15 @@ class Checkpoint:
 
     def load(self, carry_template) -> tuple[Any, int, list[np.ndarray]]:
         """``(carry, done, output_leaves)`` from :attr:`path`, validated against the run."""
+        return self._load(carry_template, whole=True)
+
+    def load_leading(self, template) -> tuple[Any, int, list[np.ndarray]]:
+        """Like :meth:`load`, but restores only the saved carry's first leaves, in the
+        structure of ``template`` (checked leaf by leaf): the state of a ``(state,
+        params)`` carry, for a caller that supplies the parameters anew."""
+        return self._load(template, whole=False)
+
+    def _load(self, carry_template, whole: bool) -> tuple[Any, int, list[np.ndarray]]:
         where = str(self.path)
         files = self._read()
         meta = self._meta(files)
@@ -127,8 +136,10 @@ class Checkpoint:
             details = "; ".join(f"{k}: checkpoint {theirs.get(k)!r}, this run {mine.get(k)!r}" for k in differing)
             raise CheckpointError(f"{where}: checkpoint is from a different run ({details})")
         leaves, treedef = _leaves(carry_template)
-        if meta["carry_treedef"] != str(treedef) or meta["n_carry"] != len(leaves):
+        if whole and (meta["carry_treedef"] != str(treedef) or meta["n_carry"] != len(leaves)):
             raise CheckpointError(f"{where}: the filter state's structure differs from this run's")
+        if len(leaves) > meta["n_carry"]:
+            raise CheckpointError(f"{where}: holds {meta['n_carry']} state arrays, this run needs {len(leaves)}")
         restored = []
         for i, leaf in enumerate(leaves):
             saved = files.get(f"carry_{i}")

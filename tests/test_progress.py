@@ -105,3 +105,27 @@ def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path):
                          checkpoint=Checkpoint(path, fingerprint=fingerprint, resume=True))
     with pytest.raises(CheckpointError, match="no checkpoint"):
         Checkpoint(tmp_path / "none.npz", resume=True).load(init)
+
+
+def test_checkpoint_load_leading_restores_only_the_leading_state(tmp_path):
+    import pytest
+
+    from jaxslam.checkpoint import Checkpoint, CheckpointError
+
+    state = {"a": np.arange(3, dtype=np.float32), "b": np.array(7, np.int32)}
+    carry = (state, np.array([0.5, 2.0], np.float32))  # (state, params)
+    ckpt = Checkpoint(tmp_path / "c.npz")
+    ckpt.save(carry, 12, [np.arange(12)])
+    template = {"a": np.zeros(3, np.float32), "b": np.array(0, np.int32)}
+    restored, done, outputs = Checkpoint(tmp_path / "c.npz").load_leading(template)
+    assert done == 12 and set(restored) == {"a", "b"}
+    np.testing.assert_array_equal(np.asarray(restored["a"]), state["a"])
+    assert int(restored["b"]) == 7
+    np.testing.assert_array_equal(outputs[0], np.arange(12))
+    # load() still wants the whole structure; load_leading still checks every leaf it restores
+    with pytest.raises(CheckpointError, match="structure"):
+        Checkpoint(tmp_path / "c.npz").load(template)
+    with pytest.raises(CheckpointError, match="shape"):
+        Checkpoint(tmp_path / "c.npz").load_leading({"a": np.zeros(4, np.float32), "b": np.array(0, np.int32)})
+    with pytest.raises(CheckpointError, match="needs 4"):
+        Checkpoint(tmp_path / "c.npz").load_leading([np.zeros(3, np.float32)] * 4)
