@@ -21,7 +21,9 @@ from 3 %, and each costs the whole log. This script spends the runs on the stret
 Variants (``--variant NAME=JSON``, a dict of parameter overrides; repeatable) resume
 from the same state with their parameters (the parameters in the checkpoint are
 replaced), so they differ only in how they run the stretch; a variant that would have
-changed the history before it is not tested on that history. A code change is
+changed the history before it is not tested on that history: with ``--own-base``
+each variant makes its own base run (its parameters from the first scan) and resumes
+from its own state, so a setting is judged on the history it makes. A code change is
 compared by running the script in a worktree holding it, with the same base run. The
 state before the stretch is one history: use several ``--base-seed`` values.
 
@@ -36,6 +38,7 @@ failure rates (``.png``).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import sys
@@ -110,14 +113,16 @@ def checkpoints():
     return KeepFirst, ResumeWithParams
 
 
-def base_run(log, algorithm: str, particles: int, seed: int, from_scan: int, path: Path):
-    """Run the whole log with ``seed``, keeping the state at the end of the chunk that
-    reaches ``from_scan`` steps in ``path``: ``(steps done there, the run's result)``."""
+def base_run(log, algorithm: str, particles: int, seed: int, from_scan: int, path: Path,
+             overrides: dict[str, Any] | None = None):
+    """Run the whole log with ``seed`` (and the parameters ``overrides`` on the
+    defaults), keeping the state at the end of the chunk that reaches ``from_scan``
+    steps in ``path``: ``(steps done there, the run's result)``."""
     from jaxslam.grid.experiment import run_grid_slam
 
     KeepFirst, _ = checkpoints()
     keep = KeepFirst(path.with_name(path.name + ".part.npz"), every=from_scan)
-    result = run_grid_slam(log, algorithm, particles, seed, progress=False, checkpoint=keep)
+    result = run_grid_slam(log, algorithm, particles, seed, overrides, progress=False, checkpoint=keep)
     keep.path.replace(path)
     return keep.saved_at, result
 
@@ -130,6 +135,16 @@ def resumed_run(log, algorithm: str, particles: int, seed: int, overrides: dict[
     _, ResumeWithParams = checkpoints()
     return run_grid_slam(log, algorithm, particles, seed, overrides, progress=False,
                          checkpoint=ResumeWithParams(path, resume=True))
+
+
+def base_path(work: Path, log: str, algorithm: str, particles: int, seed: int, from_scan: int,
+              overrides: dict[str, Any]) -> Path:
+    """The checkpoint file of a base run; a base run with parameter overrides gets its
+    own file, named by a hash of them."""
+    name = f"{log}_{algorithm}_{particles}_base{seed}_at{from_scan}"
+    if overrides:
+        name += "_" + hashlib.sha1(json.dumps(overrides, sort_keys=True).encode()).hexdigest()[:10]
+    return work / f"{name}.npz"
 
 
 def score(relations, result) -> dict[str, Any]:
@@ -226,6 +241,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="parameter overrides resumed from the same state (repeatable; "
                              "the defaults always run as 'defaults')")
     parser.add_argument("--no-defaults", action="store_true", help="run only the --variant settings")
+    parser.add_argument("--own-base", action="store_true",
+                        help="each variant makes its own base run with its parameters (from the first scan) "
+                             "and resumes from that state, instead of all resuming from the defaults' state")
     parser.add_argument("--work", default="/tmp/grid_stress", help="folder of the base checkpoints")
     parser.add_argument("--tag", default="")
     parser.add_argument("--merge", nargs="+", metavar="JSON", default=None,
@@ -266,24 +284,28 @@ def main(argv: list[str] | None = None) -> int:
         "machine": machine_info(),
         "settings": {"log": args.log, "algorithm": args.algorithm, "particles": args.particles,
                      "from_scan": args.from_scan, "base_seeds": base_seeds, "seeds": seeds,
-                     "variants": variants, "fail_m": FAIL_M},
+                     "variants": variants, "own_base": args.own_base, "fail_m": FAIL_M},
         "bases": [],
         "runs": [],
     }
     total = len(base_seeds) * len(seeds) * len(variants)
     started = time.perf_counter()
     for base_seed in base_seeds:
-        path = work / f"{args.log}_{args.algorithm}_{args.particles}_base{base_seed}_at{args.from_scan}.npz"
-        meta = path.with_suffix(".json")
-        if not (path.exists() and meta.exists()):
-            saved_at, result = base_run(log, args.algorithm, args.particles, base_seed, args.from_scan, path)
-            meta.write_text(json.dumps({"saved_at_scan": saved_at, **score(relations, result)}))
-        base = json.loads(meta.read_text())
-        base.update(base_seed=base_seed)
-        payload["bases"].append(base)
-        print(f"base seed {base_seed}: state kept at scan {base['saved_at_scan']}; the base run itself: "
-              f"{base['mean_m']:.3f} m mean, worst {base['max_m']:.2f} m", flush=True)
         for variant, overrides in variants.items():
+            made_with = overrides if args.own_base else {}
+            path = base_path(work, args.log, args.algorithm, args.particles, base_seed, args.from_scan, made_with)
+            meta = path.with_suffix(".json")
+            if not (path.exists() and meta.exists()):
+                saved_at, result = base_run(log, args.algorithm, args.particles, base_seed, args.from_scan, path,
+                                            made_with)
+                meta.write_text(json.dumps({"saved_at_scan": saved_at, **score(relations, result)}))
+            base = json.loads(meta.read_text())
+            base.update(base_seed=base_seed, made_with=made_with)
+            if base not in payload["bases"]:
+                payload["bases"].append(base)
+                print(f"base seed {base_seed}{f' ({variant})' if made_with else ''}: state kept at scan "
+                      f"{base['saved_at_scan']}; the base run itself: {base['mean_m']:.3f} m mean, "
+                      f"worst {base['max_m']:.2f} m", flush=True)
             for seed in seeds:
                 result = resumed_run(log, args.algorithm, args.particles, seed, overrides, path)
                 row = {"variant": variant, "base_seed": base_seed, "seed": seed, "filter_s": result.wall_s,

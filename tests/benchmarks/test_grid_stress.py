@@ -44,3 +44,20 @@ def test_resume_reproduces_the_base_run_and_varies_only_the_stretch(tmp_path):
                   grid_stress.resumed_run(log, "srupf-gm", 4, 0, {"track_noise_scale": 1.0}, path)):
         np.testing.assert_array_equal(other.trajectory[:101], base.trajectory[:101])
         assert not np.array_equal(other.trajectory[101:], base.trajectory[101:])
+
+
+def test_own_base_is_the_variants_own_history(tmp_path):
+    """--own-base: a variant's base run uses its parameters from the first scan, and the
+    run resumed from it with the base seed is the variant's whole run."""
+    log = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.6, num_beams=91, seed=2)
+    variant = {"track_noise_scale": 1.0}
+    default_path = grid_stress.base_path(tmp_path, "sim", "srupf-gm", 4, 0, 100, {})
+    own_path = grid_stress.base_path(tmp_path, "sim", "srupf-gm", 4, 0, 100, variant)
+    assert own_path != default_path
+    assert own_path == grid_stress.base_path(tmp_path, "sim", "srupf-gm", 4, 0, 100, dict(variant))
+    _, default = grid_stress.base_run(log, "srupf-gm", 4, 0, 100, default_path)
+    _, own = grid_stress.base_run(log, "srupf-gm", 4, 0, 100, own_path, variant)
+    # The variant changes the history before the kept state, not only the stretch.
+    assert not np.array_equal(own.trajectory[:101], default.trajectory[:101])
+    again = grid_stress.resumed_run(log, "srupf-gm", 4, 0, variant, own_path)
+    np.testing.assert_array_equal(again.trajectory, own.trajectory)
