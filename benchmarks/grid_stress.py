@@ -207,24 +207,34 @@ def plot(summary: list[dict[str, Any]], path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def title(settings: dict[str, Any], bases: list[dict[str, Any]]) -> str:
+    """The plot's title: log, filter, the stretch and the base states."""
+    return (f"{settings['log']}, {settings['algorithm']}, {settings['particles']} particles: scans "
+            f"{bases[0]['saved_at_scan']}-end from base seed(s) {settings['base_seeds']}"
+            + (", each variant's own" if settings.get("own_base") else ""))
+
+
 def merge(paths: list[str], tag: str) -> int:
-    """One JSON and plot from several results of the same log, filter and base state."""
+    """One JSON and plot from several results of the same log, filter and kind of base
+    state (the defaults' or, with ``--own-base``, each variant's own)."""
     parts = [json.loads(Path(p).read_text()) for p in paths]
-    keys = ("log", "algorithm", "particles", "from_scan")
+    keys = ("log", "algorithm", "particles", "from_scan", "own_base")
     first = parts[0]["settings"]
     for path, part in zip(paths, parts):
-        if any(part["settings"][k] != first[k] for k in keys):
-            raise SystemExit(f"{path}: another log, filter or base state than {paths[0]}")
+        if any(part["settings"].get(k, False) != first.get(k, False) for k in keys):
+            raise SystemExit(f"{path}: another log, filter or kind of base state than {paths[0]}")
     runs = [dict(r) for part in parts for r in part["runs"]]
     variants = {name: v for part in parts for name, v in part["settings"]["variants"].items()}
+    bases = [b for i, part in enumerate(parts) for b in part["bases"]
+             if b not in [c for other in parts[:i] for c in other["bases"]]]
+    base_seeds = sorted({s for part in parts for s in part["settings"]["base_seeds"]})
+    settings = {**first, "variants": variants, "base_seeds": base_seeds}
     name = "grid_stress" + (f"_{tag}" if tag else "")
     payload = {"note": parts[0]["note"], "machine": machine_info(), "merged_from": [Path(p).name for p in paths],
-               "settings": {**first, "variants": variants}, "bases": parts[0]["bases"], "runs": runs,
-               "summary": summarise(runs)}
+               "settings": settings, "bases": bases, "runs": runs, "summary": summarise(runs)}
     write_json(name, payload)
     print_table(payload["summary"], list(payload["summary"][0]))
-    plot(payload["summary"], RESULTS / f"{name}.png", f"{first['log']}, {first['algorithm']}, {first['particles']} "
-         f"particles: scans {payload['bases'][0]['saved_at_scan']}-end from base seed(s) {first['base_seeds']}")
+    plot(payload["summary"], RESULTS / f"{name}.png", title(settings, bases))
     return 0
 
 
@@ -321,8 +331,7 @@ def main(argv: list[str] | None = None) -> int:
                 write_json(name, payload)
     print_table(payload["summary"], list(payload["summary"][0]))
     png = RESULTS / f"{name}.png"
-    plot(payload["summary"], png, f"{args.log}, {args.algorithm}, {args.particles} particles: scans "
-         f"{payload['bases'][0]['saved_at_scan']}-end from base seed(s) {base_seeds}")
+    plot(payload["summary"], png, title(payload["settings"], payload["bases"]))
     print(f"wrote {RESULTS / (name + '.json')} and {png}")
     return 0
 

@@ -1,8 +1,11 @@
 """benchmarks/grid_stress.py: a run resumed from the kept state with the base seed is
 the base run bit for bit; another seed or other parameters change only the scans after
-the state; the seed list parser and the Wilson interval."""
+the state; --own-base runs a variant from its own history; merging joins base states
+of one kind; the seed list parser and the Wilson interval."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
@@ -61,3 +64,30 @@ def test_own_base_is_the_variants_own_history(tmp_path):
     assert not np.array_equal(own.trajectory[:101], default.trajectory[:101])
     again = grid_stress.resumed_run(log, "srupf-gm", 4, 0, variant, own_path)
     np.testing.assert_array_equal(again.trajectory, own.trajectory)
+
+
+def test_merge_joins_bases_and_refuses_other_kinds_of_base(tmp_path, monkeypatch):
+    import _common  # the benchmarks' helpers, loaded with grid_stress
+
+    monkeypatch.setattr(_common, "RESULTS", tmp_path)
+    monkeypatch.setattr(grid_stress, "RESULTS", tmp_path)
+
+    def part(name, base_seed, own_base, failed):
+        settings = {"log": "intel", "algorithm": "gmapping", "particles": 30, "from_scan": 11000,
+                    "base_seeds": [base_seed], "variants": {"v": {}}, "own_base": own_base}
+        runs = [{"variant": "v", "base_seed": base_seed, "seed": s, "failed": s < failed, "mean_m": 0.03,
+                 "max_m": 0.5, "filter_s": 4.0} for s in range(10)]
+        bases = [{"saved_at_scan": 11008, "base_seed": base_seed, "made_with": {}}]
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps({"note": "n", "settings": settings, "bases": bases, "runs": runs}))
+        return str(path)
+
+    a, b = part("a", 0, True, 1), part("b", 6, True, 2)
+    assert grid_stress.merge([a, b], "joined") == 0
+    joined = json.loads((tmp_path / "grid_stress_joined.json").read_text())
+    assert joined["settings"]["base_seeds"] == [0, 6] and len(joined["bases"]) == 2
+    (row,) = joined["summary"]
+    assert (row["runs"], row["failures"]) == (20, 3)
+    assert (tmp_path / "grid_stress_joined.png").exists()
+    with pytest.raises(SystemExit, match="kind of base state"):
+        grid_stress.merge([a, part("c", 9, False, 0)], "mixed")
