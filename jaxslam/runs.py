@@ -62,7 +62,7 @@ def param_fields(algorithm: str) -> dict[str, Any]:
     else:
         from jaxslam.grid.types import default_params
 
-        defaults = default_params(np.zeros(1, np.float32))
+        defaults = default_params(np.zeros(1, np.float32), algorithm=algorithm)
     values = {}
     for name in defaults._fields:
         value = getattr(defaults, name)

@@ -243,3 +243,15 @@ def test_float64_run_switches_x64_on_for_that_run_only(tmp_path):
     assert summary["dtype"] == "float64"
     assert np.load(tmp_path / "arrays.npz")["trajectory"].dtype == np.float64
     assert jax.config.jax_enable_x64 == before
+
+
+@pytest.mark.parametrize("algorithm,linear", [("srupf-gm", 0.5), ("srupf-gm-npc", 0.5), ("gmapping", 1.0)])
+def test_listed_params_carry_each_filters_keyframe_rule(algorithm, linear):
+    """`--list-params` and default_params give a filter the keyframe rule it runs with."""
+    from jaxslam.grid.types import default_keyframes, default_params
+    from jaxslam.runs import param_fields
+
+    assert default_keyframes(algorithm)[0] == linear
+    fields = param_fields(algorithm)
+    assert (fields["linear_update"], fields["angular_update"], fields["temporal_update"]) == default_keyframes(algorithm)
+    assert float(default_params(np.zeros(3), algorithm=algorithm).linear_update) == linear

@@ -278,7 +278,8 @@ def run_grid_slam(
     for field_name, value in zip(("linear_update", "angular_update", "temporal_update"), rule, strict=True):
         overrides.setdefault(field_name, value)
     rule = tuple(float(overrides[k]) for k in ("linear_update", "angular_update", "temporal_update"))
-    prm: GridSlamParams = default_params(angles, laser_offset, num_particles=particles, dtype=dtype, **overrides)
+    prm: GridSlamParams = default_params(angles, laser_offset, num_particles=particles, dtype=dtype,
+                                         algorithm=algorithm, **overrides)
     usable = float(prm.usable_range)
     ranges = np.asarray(log.ranges[:scans], np.float64)
     valid = np.asarray(log.valid[:scans]) & np.isfinite(ranges)

@@ -130,7 +130,7 @@ class StreamingGridSlam:
             overrides.setdefault(name, value)
         self.params: GridSlamParams = default_params(
             np.asarray(beam_angles), np.asarray(laser_offset, np.float64), num_particles=particles, dtype=dtype,
-            **overrides)
+            algorithm=algorithm, **overrides)
         self.num_beams = int(np.shape(beam_angles)[0])
         self.usable = float(self.params.usable_range)
         self._config_overrides = dict(config or {})

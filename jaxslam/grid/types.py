@@ -180,7 +180,7 @@ GMAPPING_KEYFRAMES = (1.0, 0.5, -1.0)
 (a negative temporal update is off): the GMapping-style filter's default."""
 
 DEFAULT_KEYFRAMES = (0.5, 0.5, -1.0)
-"""The keyframe rule of SRUPF-GM (and of :func:`default_params`): GMapping's, but a
+"""The keyframe rule of SRUPF-GM (:func:`default_params`' default): GMapping's, but a
 keyframe every 0.5 m of tracked travel instead of every metre
 (:func:`jaxslam.grid.tracking.is_keyframe`). With 1 m, SRUPF-GM failed 2 of 30 whole
 Intel runs (a relation off by more than 1 m) and 6 of 100 runs of Intel's last 2623
@@ -190,8 +190,11 @@ walls the maps held from keyframes a metre apart. With 0.5 m: none of 100 such r
 and none of 30 whole runs failed, MIT Killian scored 1.01-1.50 m against 1.52-2.06 m
 (seeds 0-2), FR079 0.037-0.038 m against 0.034-0.035 m, the perturbed logs as before
 or better but for one Seattle seed (0.144 against 0.062 m), and a run takes about a
-third longer (README, robustness section). The GMapping-style filter keeps
-:data:`GMAPPING_KEYFRAMES`: with 0.5 m it failed 3 of 10 Intel seeds against 2."""
+third longer (README, robustness section). Stressed from four filter states that its
+own parameters made (``--own-base``), 0.5 m failed 1 of 80 runs, 1 m 4 of 80. The
+GMapping-style filter keeps :data:`GMAPPING_KEYFRAMES`: with 0.5 m it failed 3 of 10
+whole Intel runs against 2, and 16 of 120 stressed runs from its own states against
+5 of 120."""
 
 
 def default_keyframes(algorithm: str) -> tuple[float, float, float]:
@@ -206,9 +209,14 @@ def default_params(
     *,
     num_particles: int = 30,
     dtype=jnp.float32,
+    algorithm: str = "srupf-gm",
     **overrides,
 ) -> GridSlamParams:
     """Defaults tuned on the raw Intel log (see ``benchmarks/``).
+
+    The keyframe rule (``linear_update``, ``angular_update``, ``temporal_update``) is
+    ``algorithm``'s (:func:`default_keyframes`): 0.5 m for SRUPF-GM, GMapping's 1 m
+    for the GMapping-style filter.
 
     GMapping's defaults where they have a counterpart: ``srr=0.1, srt=0.2,
     str=0.1, stt=0.2``, ``lstep = astep = 0.05``, ``resampleThreshold = 0.5``.
@@ -235,9 +243,9 @@ def default_params(
         "ellipse_floor": np.array([0.01, 0.01, 0.005]),
         "learning_rate": 0.3,
         "min_score": 0.0,
-        "linear_update": DEFAULT_KEYFRAMES[0],
-        "angular_update": DEFAULT_KEYFRAMES[1],
-        "temporal_update": DEFAULT_KEYFRAMES[2],
+        "linear_update": default_keyframes(algorithm)[0],
+        "angular_update": default_keyframes(algorithm)[1],
+        "temporal_update": default_keyframes(algorithm)[2],
         "track_min_score": 0.1,
         "track_min_curvature": 20.0,
         "track_noise_scale": 0.2,
