@@ -52,13 +52,32 @@ def usable_range(params: GridSlamParams, config: GridSlamConfig) -> Array:
     return jnp.minimum(params.usable_range, jnp.asarray(config.window_range, params.usable_range.dtype))
 
 
+def beam_weights(ranges: Array, valid: Array, score_range) -> Array:
+    r"""The weight of each beam in the match score and the log-likelihood,
+
+    .. math:: w_b = m_b \min\bigl(1, (r_s / r_b)^2\bigr),
+
+    :math:`m_b` the mask of usable beams, :math:`r_s` = ``score_range``. A beam within
+    :math:`r_s` counts fully; one farther counts as :math:`(r_s / r_b)^2` beams. A
+    far end point moves :math:`r_b` times a heading error and lands on walls seen
+    from afar, at grazing angles and by few scans, so its evidence is the least
+    certain; the far field is also where a scan holds the most cells. Beyond
+    :math:`r_s` the weights keep the far field's total share of the score about
+    constant instead of letting it outvote the near field. With ``score_range`` at
+    or above the usable range every weight is the mask (exactly 1 or 0).
+    """
+    far = jnp.asarray(score_range, ranges.dtype) ** 2 / jnp.maximum(ranges * ranges, jnp.finfo(ranges.dtype).tiny)
+    return jnp.where(valid, jnp.minimum(far, 1.0), 0.0)
+
+
 def match_geometry(observation: Scan, params: GridSlamParams, config: GridSlamConfig):
-    """Local end points ``(M, 2)`` and mask ``(M,)`` of the beams used for matching."""
+    """Local end points ``(M, 2)`` and weights ``(M,)`` (:func:`beam_weights`, 0 for
+    unused beams) of the beams used for matching."""
     idx = config.match_beams
     ranges = observation.ranges[idx].astype(params.beam_angles.dtype)
     valid = observation.valid[idx] & (ranges <= usable_range(params, config)) & (ranges > 0)
     safe = jnp.where(valid, ranges, 0.0)
-    return beam_points(safe, scan_angles(observation, params)[idx]), valid
+    return beam_points(safe, scan_angles(observation, params)[idx]), beam_weights(safe, valid, params.score_range)
 
 
 def particle_reader(state: GridSlamState, table: Array, config: GridSlamConfig):
@@ -237,6 +256,7 @@ def reset_status(state: GridSlamState) -> GridSlamState:
 
 
 __all__ = [
+    "beam_weights",
     "best_particle",
     "empty_info",
     "finish_step",

@@ -19,7 +19,9 @@ almost everywhere (for the gradient refinement).
   per-beam penalty of a beam that finds no wall (GMapping's ``nullLikelihood``).
 
 :math:`m_b` masks the beams used (valid, within the usable range, in the matching
-subset).
+subset). The filters pass weights :math:`w_b \in [0, 1]` in its place
+(:func:`jaxslam.grid.filter.beam_weights`: 0 for unused beams, less than 1 for beams
+beyond ``score_range``); a boolean mask is the special case of weights 0 and 1.
 
 ``kernel="gaussian3"`` replaces the bilinear evidence by GMapping's neighbourhood
 form, the best :math:`o(c) \exp(-d^2/\sigma^2)` over the 3 x 3 cells around the end
@@ -216,9 +218,9 @@ def scan_score(
     kernel: str = "bilinear",
     free_check: bool = False,
 ) -> Array:
-    """Matching score ``sum_b m_b o(e_b)`` for one pose."""
+    """Matching score ``sum_b w_b o(e_b)`` for one pose (``mask``: boolean or weights)."""
     occ = endpoint_occupancy(read, pose, local_points, laser_offset, frame, model, kernel, free_check)
-    return jnp.sum(jnp.where(mask, occ, 0.0))
+    return jnp.sum(_weighted(mask, occ))
 
 
 def scan_log_likelihood(
@@ -236,7 +238,13 @@ def scan_log_likelihood(
     occ = endpoint_occupancy(read, pose, local_points, laser_offset, frame, model, kernel, free_check)
     eps = jnp.asarray(model.floor, occ.dtype)
     log_lik = jnp.log(eps + (1 - eps) * occ)
-    return jnp.sum(jnp.where(mask, log_lik, 0.0)), jnp.sum(jnp.where(mask, occ, 0.0))
+    return jnp.sum(_weighted(mask, log_lik)), jnp.sum(_weighted(mask, occ))
+
+
+def _weighted(weights: Array, values: Array) -> Array:
+    """``w_b v_b``, exactly 0 where ``w_b`` is 0 or False (whatever ``v_b`` holds)."""
+    w = jnp.asarray(weights)
+    return jnp.where(w > 0, w.astype(values.dtype) * values, 0.0)
 
 
 def make_score_fn(

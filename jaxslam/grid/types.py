@@ -98,7 +98,9 @@ class GridSlamParams(NamedTuple):
     """Traced parameters: a sweep over any of them never recompiles.
 
     Sensor: ``beam_angles (B,)``, ``laser_offset (3,)``, ``usable_range`` (m; beams are
-    cropped here for the map and ignored beyond it for matching).
+    cropped here for the map and ignored beyond it for matching), ``score_range`` (m;
+    a beam of range ``r`` counts ``min(1, (score_range / r)**2)`` beams in the match
+    score and the log-likelihood, :func:`jaxslam.grid.filter.beam_weights`).
     Map (quantised log-odds steps): ``l_free``, ``l_occ``, ``l_max`` (clamp),
     ``occ_saturation`` (steps at which a cell scores 1), ``score_sigma`` (m, width of
     the ``gaussian3`` kernel), ``log_odds_unit`` (natural log-odds per step, for
@@ -136,6 +138,7 @@ class GridSlamParams(NamedTuple):
     beam_angles: Array
     laser_offset: Array
     usable_range: Array
+    score_range: Array
     l_free: Array
     l_occ: Array
     l_max: Array
@@ -230,6 +233,7 @@ def default_params(
         "beam_angles": np.asarray(beam_angles),
         "laser_offset": np.asarray(laser_offset),
         "usable_range": 20.0,
+        "score_range": 20.0,
         "l_free": -1.0,
         "l_occ": 4.0,
         "l_max": 60.0,

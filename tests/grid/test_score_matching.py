@@ -98,6 +98,44 @@ def test_log_likelihood_floor():
     assert float(score) == 0.0
 
 
+def test_beam_weights_match_numpy():
+    from jaxslam.grid.filter import beam_weights
+
+    rng = np.random.default_rng(3)
+    ranges = np.concatenate([[0.0, 1e-30, 20.0, 20.0001, 80.0], rng.uniform(0.0, 90.0, 200)])
+    valid = rng.random(ranges.size) > 0.2
+    got = np.asarray(beam_weights(jnp.asarray(ranges), jnp.asarray(valid), 20.0))
+    with np.errstate(divide="ignore"):
+        want = np.where(valid, np.minimum(1.0, (20.0 / ranges) ** 2), 0.0)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert np.all(got[valid & (ranges <= 20.0)] == 1.0)  # exactly the mask within score_range
+    assert np.all(np.isfinite(got))
+
+
+def test_weighted_score_and_log_likelihood_match_numpy():
+    """Weights in place of the mask: sum_b w_b o_b and sum_b w_b log(eps + (1 - eps) o_b)."""
+    rng = np.random.default_rng(4)
+    grid = rng.integers(-10, 12, SPEC.shape).astype(np.int8)
+    pts = np.stack([rng.uniform(-0.9, 1.9, 50), rng.uniform(-0.4, 1.8, 50)], -1)
+    weights = np.where(rng.random(50) > 0.3, rng.uniform(0.0, 1.0, 50), 0.0)
+    pose = np.array([0.1, -0.05, 0.2])
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    world = pts @ np.array([[c, s], [-s, c]]) + pose[:2]
+    occ = np.array([np_bilinear(grid, x, y, SPEC, 8.0) for x, y in world])
+    eps = 0.01
+    ll, score = scan_log_likelihood(dense_reader(jnp.asarray(grid), SPEC), jnp.asarray(pose), jnp.asarray(pts),
+                                    jnp.asarray(weights), jnp.zeros(3), SPEC, ScoreModel(8.0, 0.05, eps))
+    np.testing.assert_allclose(float(score), np.sum(weights * occ), rtol=1e-10)
+    np.testing.assert_allclose(float(ll), np.sum(weights * np.log(eps + (1 - eps) * occ)), rtol=1e-10)
+    # a boolean mask is the weights 0 and 1
+    mask = weights > 0
+    ll_m, score_m = scan_log_likelihood(dense_reader(jnp.asarray(grid), SPEC), jnp.asarray(pose), jnp.asarray(pts),
+                                        jnp.asarray(mask), jnp.zeros(3), SPEC, ScoreModel(8.0, 0.05, eps))
+    ll_1, score_1 = scan_log_likelihood(dense_reader(jnp.asarray(grid), SPEC), jnp.asarray(pose), jnp.asarray(pts),
+                                        jnp.asarray(mask.astype(float)), jnp.zeros(3), SPEC, ScoreModel(8.0, 0.05, eps))
+    assert float(ll_m) == float(ll_1) and float(score_m) == float(score_1)
+
+
 # --- scan matching on a synthetic office map -------------------------------------
 
 # Walls of the office lie on multiples of 5 cm; a misaligned origin keeps them off
