@@ -221,8 +221,10 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
 
     if args.list_params:
         algorithm = args.algorithm or DEFAULT_ALGORITHM[runs.resolve_dataset(args.dataset, None)[2]]
+        chosen = ("usable_range", "score_range")  # grid filters: from the log (jaxslam.grid.range_rule)
         for name, default in runs.param_fields(algorithm).items():
-            print(f"{name:24s} {default!r}")
+            note = "  (indoor logs; chosen from the log's readings unless set: summary.json range_rule)"
+            print(f"{name:24s} {default!r}" + (note if name in chosen else ""))
         return None
     if args.resume is not None:
         saved = args.resume / "run.json"

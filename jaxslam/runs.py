@@ -199,9 +199,8 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     summary: dict[str, Any] = {
         "algorithm": algorithm, "dataset": name, "particles": particles, "seed": seed,
         "scans": int(result.scan_times.shape[0]), "keyframes": int(result.keyframes.shape[0]),
-        "keyframe_rule": result.summary()["keyframe_rule"],
-        **{k: result.summary()[k]
-           for k in ("maps", "map_shape", "map_growths", "map_growth_steps", "xla_compiler_options")},
+        **{k: result.summary()[k] for k in ("keyframe_rule", "range_rule", "maps", "map_shape", "map_growths",
+                                            "map_growth_steps", "xla_compiler_options")},
         "wall_s": result.wall_s, "compile_s": result.compile_s,
         "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name,

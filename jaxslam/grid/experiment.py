@@ -38,6 +38,7 @@ from jaxslam.grid.types import (
     default_keyframes,
     default_params,
 )
+from jaxslam.grid.range_rule import choose_range
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
 from jaxslam.metrics.trajectory_io import se2_between
@@ -100,6 +101,7 @@ class GridSlamResult:
     map_stats: dict[str, Any] = dataclasses.field(default_factory=dict)
     growths: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     compiler_options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    range_rule: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready scalars."""
@@ -111,6 +113,7 @@ class GridSlamResult:
             "scans": int(self.trajectory.shape[0]),
             "keyframes": int(self.keyframes.shape[0]),
             "keyframe_rule": dict(zip(("linear_m", "angular_rad", "temporal_s"), self.keyframe_rule, strict=True)),
+            "range_rule": dict(self.range_rule),
             "wall_s": self.wall_s,
             "compile_s": self.compile_s,
             "resamplings": self.resamplings,
@@ -278,6 +281,10 @@ def run_grid_slam(
     for field_name, value in zip(("linear_update", "angular_update", "temporal_update"), rule, strict=True):
         overrides.setdefault(field_name, value)
     rule = tuple(float(overrides[k]) for k in ("linear_update", "angular_update", "temporal_update"))
+    ranging: dict[str, Any] = {"source": "params"}
+    if "usable_range" not in overrides and "score_range" not in overrides:
+        ranging = {"source": "log", **choose_range(log.ranges, log.valid, getattr(log, "max_range", None))}
+        overrides["usable_range"], overrides["score_range"] = ranging["usable_range"], ranging["score_range"]
     prm: GridSlamParams = default_params(angles, laser_offset, num_particles=particles, dtype=dtype,
                                          algorithm=algorithm, **overrides)
     usable = float(prm.usable_range)
@@ -346,6 +353,7 @@ def run_grid_slam(
         params=params_record,
         state=state,
         keyframe_rule=rule,
+        range_rule=ranging,
         map_stats=pool_stats(state.maps, cfg.layout),
         growths=stats.growths,
         compiler_options=stats.compiler_options,

@@ -229,11 +229,10 @@ def default_params(
     ``1/90``, for every ``N``. ``num_particles`` is kept for callers that want
     the GMapping rule: pass ``weight_gain=1 / (3 * N)``.
 
-    ``usable_range`` 20 m with ``score_range`` 20 m (every beam weighs 1). Outdoors,
-    where a fifth of the readings lie beyond 20 m (the Freiburg campus), pass
-    ``usable_range=80, score_range=20``: it took the perturbed campus from 10.6 / 3.8 m
-    to 0.44 / 1.57 m (seeds 0 / 1), but as a default it made MIT Killian's worst of
-    five seeds 3.63 m against 1.50 m (README, "Far beams at a discount").
+    ``usable_range`` 20 m with ``score_range`` 20 m (every beam weighs 1): the range
+    of indoor logs. :func:`jaxslam.grid.experiment.run_grid_slam` chooses both from
+    the log's readings unless they are given (:mod:`jaxslam.grid.range_rule`: 80 m
+    and 20 m where more than a tenth of the readings lie beyond 20 m).
     """
     values = {
         "beam_angles": np.asarray(beam_angles),
