@@ -30,7 +30,9 @@ the campus, the clinic, UAL); the threshold sits in the gap, not on any one log.
 The decision is the log's, made once before the run from all its readings, like the
 "no return" detection of :func:`jaxslam.datasets.carmen.detect_no_return`; it is
 reported in ``summary.json`` (``range_rule``). An explicit ``usable_range`` or
-``score_range`` (``--set``) turns it off.
+``score_range`` (``--set``) turns it off. The streaming filter
+(:mod:`jaxslam.grid.stream`), which sees one scan at a time, cannot measure the
+fraction before it starts: it keeps the 20 m defaults unless it is given the ranges.
 """
 
 from __future__ import annotations
