@@ -231,8 +231,8 @@ def default_params(
 
     ``usable_range`` 20 m with ``score_range`` 20 m (every beam weighs 1): the range
     of indoor logs. :func:`jaxslam.grid.experiment.run_grid_slam` chooses both from
-    the log's readings unless they are given (:mod:`jaxslam.grid.range_rule`: 80 m
-    and 20 m where more than a tenth of the readings lie beyond 20 m).
+    the log's readings unless they are given (:mod:`jaxslam.grid.range_rule`: both
+    80 m where more than a tenth of the readings lie beyond 20 m).
     """
     values = {
         "beam_angles": np.asarray(beam_angles),

@@ -28,7 +28,7 @@ def test_indoor_log_keeps_the_near_range():
 def test_far_field_log_uses_the_far_range(max_range, usable):
     ranges, valid = readings(0.25)
     rule = choose_range(ranges, valid, max_range)
-    assert rule["far_field"] and rule["usable_range"] == usable and rule["score_range"] == NEAR_RANGE
+    assert rule["far_field"] and rule["usable_range"] == usable and rule["score_range"] == usable
 
 
 def test_threshold_and_invalid_readings():
@@ -52,7 +52,7 @@ def test_run_grid_slam_applies_and_reports_the_rule():
     result = run_grid_slam(far, "srupf-gm", particles=2, seed=0, progress=False, max_keyframes=3)
     assert result.range_rule == {"source": "log", **want}
     assert result.summary()["range_rule"] == result.range_rule
-    assert result.params["usable_range"] == want["usable_range"] and result.params["score_range"] == NEAR_RANGE
+    assert result.params["usable_range"] == want["usable_range"] and result.params["score_range"] == want["usable_range"]
     assert result.config.window_range == 10.0 * np.ceil(want["usable_range"] / 10.0)
     # an explicit usable range turns the rule off
     own = run_grid_slam(far, "srupf-gm", particles=2, seed=0, progress=False, max_keyframes=3,
