@@ -322,6 +322,7 @@ def calibrate_grid(
 
     from jaxslam.calibrate.fit import CalibrationResult, fit_and_select, split_window
     from jaxslam.grid.experiment import run_grid_slam
+    from jaxslam.grid.range_rule import apply_range_rule
     from jaxslam.grid.types import default_params
 
     names = tuple(names)
@@ -331,7 +332,9 @@ def calibrate_grid(
     fit_window = split_window(window, validation)
     if fit_window < 2:
         raise ValueError(f"the fitted part of the window must hold at least two scans, got {fit_window}")
-    overrides = dict(params or {})
+    # The ranges the run on the whole log would use (jaxslam.grid.range_rule), for the
+    # reference run's layout and the fitted parameters alike.
+    overrides, _ = apply_range_rule(dict(params or {}), log)
     val_particles = validation_particles or particles
     # The layout (and ray budget) of the filter's own run on the window, pool doubled
     # for other noise levels and seeds.

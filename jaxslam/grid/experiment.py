@@ -38,7 +38,7 @@ from jaxslam.grid.types import (
     default_keyframes,
     default_params,
 )
-from jaxslam.grid.range_rule import choose_range
+from jaxslam.grid.range_rule import apply_range_rule
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
 from jaxslam.metrics.trajectory_io import se2_between
@@ -281,10 +281,7 @@ def run_grid_slam(
     for field_name, value in zip(("linear_update", "angular_update", "temporal_update"), rule, strict=True):
         overrides.setdefault(field_name, value)
     rule = tuple(float(overrides[k]) for k in ("linear_update", "angular_update", "temporal_update"))
-    ranging: dict[str, Any] = {"source": "params"}
-    if "usable_range" not in overrides and "score_range" not in overrides:
-        ranging = {"source": "log", **choose_range(log.ranges, log.valid, getattr(log, "max_range", None))}
-        overrides["usable_range"], overrides["score_range"] = ranging["usable_range"], ranging["score_range"]
+    overrides, ranging = apply_range_rule(overrides, log)
     prm: GridSlamParams = default_params(angles, laser_offset, num_particles=particles, dtype=dtype,
                                          algorithm=algorithm, **overrides)
     usable = float(prm.usable_range)

@@ -85,4 +85,19 @@ def choose_range(ranges: np.ndarray, valid: np.ndarray, max_range: float | None 
     }
 
 
-__all__ = ["FAR_FRACTION", "FAR_RANGE", "NEAR_RANGE", "choose_range"]
+def apply_range_rule(overrides: dict[str, Any], log) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(overrides, record)``: parameter overrides with the rule's ranges added for
+    ``log`` (a :class:`jaxslam.datasets.carmen.CarmenLog`, all its scans), unless they
+    set ``usable_range`` or ``score_range`` themselves. ``record`` is what
+    ``summary.json`` reports as ``range_rule``: ``{"source": "params"}``, or
+    ``{"source": "log", **choose_range(...)}``. Every grid entry point that builds
+    parameters for a log (the run, the calibration) takes its ranges from here."""
+    overrides = dict(overrides)
+    if "usable_range" in overrides or "score_range" in overrides:
+        return overrides, {"source": "params"}
+    record = {"source": "log", **choose_range(log.ranges, log.valid, getattr(log, "max_range", None))}
+    overrides["usable_range"], overrides["score_range"] = record["usable_range"], record["score_range"]
+    return overrides, record
+
+
+__all__ = ["FAR_FRACTION", "FAR_RANGE", "NEAR_RANGE", "apply_range_rule", "choose_range"]

@@ -146,3 +146,21 @@ def test_calibrate_srupf_then_run_with_params(tmp_path):
                  "--no-plots", "--no-progress", "--params", str(out / "calibration.json")]) == 0
     summary = json.loads((run_out / "summary.json").read_text())
     assert summary["overrides"] == payload["params_after"]
+
+
+def test_calibration_takes_the_runs_range_rule():
+    """On a far-field log the fitted parameters and the reference layout use the ranges
+    the run on the whole log would use (jaxslam.grid.range_rule), not the 20 m default."""
+    import dataclasses
+
+    from jaxslam.grid.range_rule import choose_range
+
+    base = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.3, num_beams=91, seed=2, max_range=60.0)
+    far = dataclasses.replace(base, ranges=base.ranges * 6.0)  # readings stretched: a far field
+    want = choose_range(far.ranges, far.valid, far.max_range)
+    assert want["far_field"]
+    result = G.calibrate_grid(far, particles=2, filters=1, steps=1, window=24, samples=1, validation=0.0,
+                              params=KEYFRAMES)
+    assert float(result.params.usable_range) == want["usable_range"]
+    assert float(result.params.score_range) == want["score_range"]
+    assert result.config.window_range == 10.0 * np.ceil(want["usable_range"] / 10.0)
