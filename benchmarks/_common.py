@@ -77,7 +77,7 @@ def print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
             return f"{value:.4g}"
         return str(value)
 
-    widths = {c: max(len(c), *(len(fmt(r.get(c, ""))) for r in rows)) for c in columns}
+    widths = {c: max([len(c), *(len(fmt(r.get(c, ""))) for r in rows)]) for c in columns}
     print("  ".join(c.rjust(widths[c]) for c in columns))
     print("  ".join("-" * widths[c] for c in columns))
     for r in rows:

@@ -12,6 +12,12 @@ are listed, not plotted).
 
     python benchmarks/grid_robustness_merge.py benchmarks/results/grid_robustness_{defaults,perturbed_high}.json
     python benchmarks/grid_robustness_merge.py OLD.json:gmapping-cpp NEW.json   # C++ runs of OLD, the rest of NEW
+    python benchmarks/grid_robustness_merge.py 'VARIANTS.json:srupf-gm[l05]=srupf-gm' NEW.json
+
+The last form takes a variant's runs under another name: a variant whose settings
+have since become the defaults (``l05`` ran ``linear_update`` 0.5 before that was
+the default) counts as the defaults' run. Each renamed run keeps its old name in
+``renamed_from``, and the merged JSON lists the sources as given.
 """
 
 from __future__ import annotations
@@ -29,10 +35,20 @@ from _common import machine_info, print_table  # noqa: E402
 from grid_robustness import FILTERS, RESULTS, summarize  # noqa: E402
 
 
-def parse_source(spec: str) -> tuple[Path, set[str] | None]:
-    """``PATH`` (every run) or ``PATH:FILTER[,FILTER..]`` (only those filters' runs)."""
+def parse_source(spec: str) -> tuple[Path, dict[str, str] | None]:
+    """``PATH`` (every run) or ``PATH:FILTER[,FILTER..]`` (only those filters' runs),
+    where ``FILTER=NAME`` takes that filter's runs under ``NAME``. Returns the path
+    and ``{filter: name in the merge}`` (``None``: every run, under its own name)."""
     path, _, names = spec.partition(":")
-    return Path(path), (set(names.split(",")) if names else None)
+    if not names:
+        return Path(path), None
+    picked: dict[str, str] = {}
+    for item in names.split(","):
+        name, _, new = item.partition("=")
+        if not name or (_ and not new):
+            raise SystemExit(f"{spec}: empty filter name in {item!r} (PATH:FILTER[=NAME][,...])")
+        picked[name] = new or name
+    return Path(path), picked
 
 
 def merge(sources: list[str | Path]) -> tuple[list[dict], list[str]]:
@@ -48,8 +64,11 @@ def merge(sources: list[str | Path]) -> tuple[list[dict], list[str]]:
         except (OSError, ValueError, KeyError) as error:
             raise SystemExit(f"{path}: not a grid_robustness result ({error})") from error
         for run in runs:
-            if only is not None and run["filter"] not in only:
-                continue
+            if only is not None:
+                if run["filter"] not in only:
+                    continue
+                if only[run["filter"]] != run["filter"]:
+                    run = {**run, "filter": only[run["filter"]], "renamed_from": run["filter"]}
             key = (run["log"], run["filter"], run["seed"])
             if key in by_key:
                 replaced.append(f"{key[0]} {key[1]} seed {key[2]}: {by_key[key]['source']} -> {path.name}")
@@ -90,12 +109,39 @@ def plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def markdown(summary: list[dict]) -> str:
+    """One Markdown row per log, one column per filter: on logs with relations the
+    mean of the seeds' means (worst seed), the worst relation and the count over 0.5 m
+    over every seed; elsewhere the largest keyframe correction over the seeds."""
+    filters = [f for f in FILTERS if any(s["filter"] == f for s in summary)]
+    logs = sorted({s["log"] for s in summary}, key=lambda log: ("worst_mean_m" not in next(
+        s for s in summary if s["log"] == log), log))
+    lines = ["| log | " + " | ".join(filters) + " |", "|---|" + "---|" * len(filters)]
+    for log in logs:
+        cells = []
+        for name in filters:
+            item = next((s for s in summary if s["log"] == log and s["filter"] == name), None)
+            if item is None or not item["seeds"]:
+                cells.append("")
+            elif "worst_mean_m" in item:
+                cells.append(f"{item['mean_of_means_m']:.3f} ({item['worst_mean_m']:.3f}), "
+                             f"{item['worst_max_m']:.2f} m, {item['over_0.5m_total']} [{item['seeds']}]")
+            else:
+                cells.append(f"largest correction {item['worst_jump_m']:.2f} m [{item['seeds']}]")
+        lines.append(f"| {log} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("files", nargs="+",
                         help="grid_robustness JSON files, earliest first; PATH:FILTER[,FILTER] takes only "
-                             "those filters' runs of a file (e.g. GMapping C++ runs of an earlier part)")
+                             "those filters' runs of a file (e.g. GMapping C++ runs of an earlier part); "
+                             "FILTER=NAME takes them under NAME (a variant that became the default)")
     parser.add_argument("--name", default="", help="suffix of the merged JSON and plot")
+    parser.add_argument("--markdown", action="store_true",
+                        help="also print a Markdown table: per log and filter the mean of the seeds' means "
+                             "(worst seed), the worst relation, relations over 0.5 m and [seeds]")
     args = parser.parse_args(argv)
     rows, replaced = merge(args.files)
     print_table(rows, ["log", "seed", "filter", "mean_m", "median_m", "max_m", "over_0.5m", "n_relations",
@@ -104,6 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     summary = summarize(rows)
     print_table(summary, ["log", "filter", "seeds", "worst_mean_m", "mean_of_means_m", "worst_max_m",
                           "over_0.5m_total", "wall_s_mean"])
+    if args.markdown:
+        print()
+        print(markdown(summary))
     suffix = f"_{args.name}" if args.name else ""
     json_path = RESULTS / f"grid_robustness_merged{suffix}.json"
     png_path = RESULTS / f"grid_robustness_merged{suffix}.png"

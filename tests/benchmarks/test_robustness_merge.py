@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import json
+
+import pytest
 from pathlib import Path
 
 from . import load_benchmark
@@ -32,3 +34,35 @@ def test_later_parts_replace_earlier_runs_and_filters_can_be_picked(tmp_path):
     got = {(r["log"], r["filter"], r["seed"]): r["mean_m"] for r in rows}
     assert got[("intel", "srupf-gm", 0)] == 0.025 and got[("fr079", "srupf-gm", 1)] == 0.9
     assert len(replaced) == 1 and "old.json -> new.json" in replaced[0]
+
+
+def test_a_variant_is_taken_under_another_name_and_keeps_its_old_one(tmp_path):
+    variants = _part(tmp_path / "variants.json", [("intel", "srupf-gm[l05]", 0, 0.03), ("intel", "srupf-gm[c40]", 0, 0.9),
+                                                  ("intel", "srupf-gm", 1, 0.7)])
+    later = _part(tmp_path / "later.json", [("intel", "srupf-gm", 1, 0.04)])
+    rows, replaced = merge_module.merge([f"{variants}:srupf-gm[l05]=srupf-gm,srupf-gm", str(later)])
+    got = {(r["log"], r["filter"], r["seed"]): (r["mean_m"], r.get("renamed_from")) for r in rows}
+    # c40 is not picked; l05 counts as the defaults' seed 0; the later file's seed 1 replaces the earlier one.
+    assert got == {("intel", "srupf-gm", 0): (0.03, "srupf-gm[l05]"), ("intel", "srupf-gm", 1): (0.04, None)}
+    assert replaced == ["intel srupf-gm seed 1: variants.json -> later.json"]
+    with pytest.raises(SystemExit, match="empty filter name"):
+        merge_module.parse_source(f"{variants}:srupf-gm[l05]=")
+
+
+def test_markdown_rows_carry_the_worst_seed_and_the_counts():
+    rows = [{"log": "intel", "filter": "srupf-gm", "seed": s, "mean_m": m, "max_m": x, "over_0.5m": o,
+             "jump_max_m": 0.1, "wall_s": 1.0, "cpu_s": 1.0}
+            for s, m, x, o in [(0, 0.03, 0.4, 0), (1, 0.13, 2.4, 159)]]
+    rows += [{"log": "fr-clinic", "filter": "gmapping", "seed": 0, "jump_max_m": 0.27, "wall_s": 1.0, "cpu_s": 1.0}]
+    table = merge_module.markdown(merge_module.summarize(rows)).splitlines()
+    assert table[0] == "| log | srupf-gm | gmapping |"
+    assert table[2] == "| intel | 0.080 (0.130), 2.40 m, 159 [2] |  |"
+    assert table[3] == "| fr-clinic |  | largest correction 0.27 m [1] |"
+
+
+def test_a_table_of_no_runs_prints_its_header(capsys):
+    """A suite part whose every filter was left out (GMapping C++ not found) prints an
+    empty table instead of crashing after the runs it did make."""
+    common = load_benchmark("_common")
+    common.print_table([], ["log", "mean_m"])
+    assert capsys.readouterr().out.split("\n")[0].split() == ["log", "mean_m"]
