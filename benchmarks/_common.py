@@ -18,6 +18,8 @@ def machine_info() -> dict[str, Any]:
     import jax
     import numpy as np
 
+    from jaxslam.compiler import cpus_allowed
+
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as fh:
@@ -30,6 +32,9 @@ def machine_info() -> dict[str, Any]:
     return {
         "cpu": cpu,
         "cores": os.cpu_count(),
+        # the CPUs this process (and the workers it starts) may use: XLA compiles
+        # another program for another count (jaxslam.compiler.cpus_allowed)
+        "cpus_allowed": cpus_allowed(),
         "platform": platform.platform(),
         "python": platform.python_version(),
         "jax": jax.__version__,

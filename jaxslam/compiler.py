@@ -59,7 +59,7 @@ ENV_VAR = "JAXSLAM_XLA_OPTIONS"
 OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
 """jaxslam's XLA options (see the module docstring)."""
 
-__all__ = ["ENV_VAR", "OPTIONS", "THREADS_ENV", "auto_threads", "jit", "jit_with", "options", "set_threads"]
+__all__ = ["ENV_VAR", "OPTIONS", "THREADS_ENV", "auto_threads", "cpus_allowed", "jit", "jit_with", "options", "set_threads"]
 
 
 def options() -> dict[str, Any]:
@@ -144,6 +144,18 @@ def _parse_threads(value: Any, source: str) -> int | None:
 
 _STARTED_WITH: dict[str, int | None] | None = None
 """The pool :func:`set_threads` started XLA's backend with (``threads``: None for all)."""
+
+
+def cpus_allowed() -> int:
+    """How many CPUs this process may run on (its affinity, as ``taskset`` sets it; the
+    CPU count where the platform has no affinity). XLA's CPU compiler builds a
+    different program for a different count, whatever the thread pool: JAX's cache
+    keys differ, and the rounding can. Runs recorded with it can be compared like for
+    like."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def set_threads(threads: int | str | None, algorithm: str, particles: int) -> dict[str, Any]:

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxslam.compiler import set_threads
+from jaxslam.compiler import cpus_allowed, set_threads
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
 from jaxslam.outputs import prefetch_plotting, write_json, write_with_figures
@@ -403,6 +403,9 @@ def run(
     summary["compilations"] = compilations.as_dict()
     summary["cache_dir"] = jax.config.jax_compilation_cache_dir
     summary["xla_threads"] = xla_threads
+    # XLA's CPU compiler builds another program for another set of usable CPUs
+    # (taskset), and on chaotic logs that can change the result (README, "Compilation cache")
+    summary["cpus_allowed"] = cpus_allowed()
     # load_s, output_s: reading the data; writing the files and drawing the figures
     # (seconds; the two overlap)
     writing = time.perf_counter()

@@ -118,6 +118,7 @@ def test_cli_runs_identical_cold_warm_and_off(tmp_path):
             assert summary["compilations"]["cache_hits"] > 0
         if name == "off":
             assert summary["cache_dir"] is None and summary["compilations"]["cache_hits"] == 0
+        assert summary["cpus_allowed"] == len(os.sched_getaffinity(0))
         if name == "all threads":
             assert summary["xla_threads"] == {"threads": "all", "source": "argument"}
         else:

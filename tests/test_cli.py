@@ -1,6 +1,7 @@
 """The command line: every subcommand, bad arguments (exit 2), missing datasets."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -108,6 +109,7 @@ def test_run_simulated_landmarks_writes_outputs_then_evaluate_and_plot(tmp_path,
     for key in ("algorithm", "dataset", "particles", "seed", "steps", "wall_s", "compile_s", "resamplings", "landmarks"):
         assert key in summary
     assert summary["steps"] == 60 and summary["particles"] == 8 and summary["overrides"] == {"range_std": 0.3}
+    assert summary["cpus_allowed"] == len(os.sched_getaffinity(0))  # what XLA compiled for (taskset)
     for name in ("trajectory.tum", "landmarks.csv", "trajectory.png", "health.png", "arrays.npz"):
         assert (out / name).stat().st_size > 0
     # The run drew its figures from memory while arrays.npz was written; `plot` redraws

@@ -160,3 +160,17 @@ def test_results_do_not_depend_on_xla_threads():
     one = _run_program(PROGRAM, ["off"], {"NPROC": "1"})
     two = _run_program(PROGRAM, ["off"], {"NPROC": "2"})
     assert one["result"] == two["result"]
+
+
+def test_cpus_allowed_follows_the_affinity_taskset_sets():
+    """The count summary.json and the benchmarks record: the CPUs the process may run
+    on, not the machine's, so a run pinned with taskset says so."""
+    code = (
+        "import os\n"
+        "os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})\n"
+        "from jaxslam.compiler import cpus_allowed\n"
+        "print(cpus_allowed())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["1"]
+    assert compiler.cpus_allowed() == len(os.sched_getaffinity(0))
