@@ -44,8 +44,8 @@ def parse_source(spec: str) -> tuple[Path, dict[str, str] | None]:
         return Path(path), None
     picked: dict[str, str] = {}
     for item in names.split(","):
-        name, _, new = item.partition("=")
-        if not name or (_ and not new):
+        name, sep, new = item.partition("=")
+        if not name or (sep and not new):
             raise SystemExit(f"{spec}: empty filter name in {item!r} (PATH:FILTER[=NAME][,...])")
         picked[name] = new or name
     return Path(path), picked

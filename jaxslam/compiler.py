@@ -59,7 +59,9 @@ ENV_VAR = "JAXSLAM_XLA_OPTIONS"
 OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
 """jaxslam's XLA options (see the module docstring)."""
 
-__all__ = ["ENV_VAR", "OPTIONS", "THREADS_ENV", "auto_threads", "cpus_allowed", "jit", "jit_with", "options", "set_threads"]
+__all__ = [
+    "ENV_VAR", "OPTIONS", "THREADS_ENV", "auto_threads", "cpus_allowed", "jit", "jit_with", "options", "set_threads",
+]
 
 
 def options() -> dict[str, Any]:

@@ -4,9 +4,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
-from pathlib import Path
 
 from . import load_benchmark
 
@@ -37,8 +37,8 @@ def test_later_parts_replace_earlier_runs_and_filters_can_be_picked(tmp_path):
 
 
 def test_a_variant_is_taken_under_another_name_and_keeps_its_old_one(tmp_path):
-    variants = _part(tmp_path / "variants.json", [("intel", "srupf-gm[l05]", 0, 0.03), ("intel", "srupf-gm[c40]", 0, 0.9),
-                                                  ("intel", "srupf-gm", 1, 0.7)])
+    variants = _part(tmp_path / "variants.json", [("intel", "srupf-gm[l05]", 0, 0.03),
+                                                  ("intel", "srupf-gm[c40]", 0, 0.9), ("intel", "srupf-gm", 1, 0.7)])
     later = _part(tmp_path / "later.json", [("intel", "srupf-gm", 1, 0.04)])
     rows, replaced = merge_module.merge([f"{variants}:srupf-gm[l05]=srupf-gm,srupf-gm", str(later)])
     got = {(r["log"], r["filter"], r["seed"]): (r["mean_m"], r.get("renamed_from")) for r in rows}

@@ -52,7 +52,8 @@ def test_run_grid_slam_applies_and_reports_the_rule():
     result = run_grid_slam(far, "srupf-gm", particles=2, seed=0, progress=False, max_keyframes=3)
     assert result.range_rule == {"source": "log", **want}
     assert result.summary()["range_rule"] == result.range_rule
-    assert result.params["usable_range"] == want["usable_range"] and result.params["score_range"] == want["usable_range"]
+    assert result.params["usable_range"] == want["usable_range"]
+    assert result.params["score_range"] == want["usable_range"]
     assert result.config.window_range == 10.0 * np.ceil(want["usable_range"] / 10.0)
     # an explicit usable range turns the rule off
     own = run_grid_slam(far, "srupf-gm", particles=2, seed=0, progress=False, max_keyframes=3,
