@@ -400,6 +400,7 @@ def main(argv: list[str] | None = None) -> int:
                                 "compile_s": rec["compile_s"], "cpu_s": rec["cpu_s"],
                                 "keyframes": rec["keyframes"], "resamplings": rec["resamplings"],
                                 "map_growths": rec["map_growths"], "map_png": rec.get("map_png"),
+                                "closures": rec.get("closures"), "closure_scans": rec.get("closure_scans"),
                                 "laser_odometry_s": rec.get("laser_odometry_s"),
                                 "laser_odometry_accepted": rec.get("laser_odometry_accepted")})
                     traj, times, kf_i, kf_p = (data["trajectory"], data["scan_times"], data["keyframes"],
@@ -414,7 +415,7 @@ def main(argv: list[str] | None = None) -> int:
             json_path.write_text(json.dumps(payload, indent=1, default=float) + "\n")
 
     columns = ["log", "seed", "filter", "mean_m", "median_m", "max_m", "over_0.5m", "over_1m", "n_relations",
-               "bad_short", "bad_long", "jump_max_m", "jumps_over_0.3m", "keyframes", "wall_s", "cpu_s"]
+               "bad_short", "bad_long", "jump_max_m", "jumps_over_0.3m", "closures", "keyframes", "wall_s", "cpu_s"]
     if any("bench_mean_m" in r for r in rows):
         columns[6:6] = ["bench_mean_m", "bench_max_m", "bench_n_relations"]
     print_table(rows, columns)

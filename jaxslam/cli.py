@@ -108,6 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--max-range", type=float, default=None, metavar="M",
                      help="CARMEN logs: range limit in m; readings at or beyond it are 'no return' (default: the "
                           "logged limit, lowered to a detected no-return sentinel pile, see summary.json no_return)")
+    run.add_argument("--loop-closure", action="store_true",
+                     help="laser data: where the tracking's match fails in a mapped place, search up to 4 m and "
+                          "8 deg around it and take a clearly better pose (closes large loops such as MIT "
+                          "Killian's; off by default: it can also take false closures)")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",
@@ -254,7 +258,7 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
         bag={"scan_topic": args.scan_topic, "odom_topic": args.odom_topic, "base_frame": args.base_frame,
              "laser_offset": args.laser_mount},
         rerun=args.rerun, rerun_spawn=args.rerun_spawn,
-        max_range=args.max_range, threads=args.threads,
+        max_range=args.max_range, threads=args.threads, loop_closure=args.loop_closure,
     )
 
 

@@ -169,7 +169,7 @@ def _log_cache_folder() -> str | None:
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
-             checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False):
+             checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False, loop_closure=False):
     """Run a grid filter on a laser log and score it: ``(summary, arrays, write_files)``,
     the figures' data (:func:`jaxslam.outputs.grid_arrays`) and a function that writes
     the run's files. ``prefetch``: import the plotting module on a thread once the log
@@ -190,6 +190,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         checkpoint, chunk = live, live.every
     result = grid_experiment.run_grid_slam(
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
+        config={"closure": True} if loop_closure else None,
         progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
         **({"checkpoint": checkpoint} if checkpoint is not None else {}),
         **{f"{k}_update": v for k, v in (keyframes or {}).items()},
@@ -200,10 +201,11 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "algorithm": algorithm, "dataset": name, "particles": particles, "seed": seed,
         "scans": int(result.scan_times.shape[0]), "keyframes": int(result.keyframes.shape[0]),
         **{k: result.summary()[k] for k in ("keyframe_rule", "range_rule", "maps", "map_shape", "map_growths",
-                                            "map_growth_steps", "xla_compiler_options")},
+                                            "map_growth_steps", "xla_compiler_options", "closures",
+                                            "closure_scans")},
         "wall_s": result.wall_s, "compile_s": result.compile_s,
         "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
-        "resamplings": result.resamplings, "dtype": np.dtype(dtype).name,
+        "resamplings": result.resamplings, "dtype": np.dtype(dtype).name, "loop_closure": bool(loop_closure),
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}), "load_s": load_s, "log_cache": log_cache,
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
@@ -287,6 +289,7 @@ def run(
     rerun_spawn: bool = False,
     max_range: float | None = None,
     threads: int | str | None = None,
+    loop_closure: bool = False,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -305,6 +308,8 @@ def run(
     of the "no return" sentinel detection (:func:`jaxslam.datasets.carmen.detect_no_return`).
     ``float64`` runs the filter in double precision: JAX's 64-bit mode is switched on
     for this run only (``jax.enable_x64``), the default float32 path never touches it.
+    ``loop_closure`` (laser data) turns on the tracking's loop-closure search
+    (:mod:`jaxslam.grid.closure`; off by default).
     ``threads`` sizes XLA's CPU thread pool (a count or ``"all"``; default
     ``$JAXSLAM_THREADS``, else :func:`jaxslam.compiler.auto_threads`):
     :func:`jaxslam.compiler.set_threads`, which can act only before the process's
@@ -357,6 +362,10 @@ def run(
         run_args["max_range"] = float(max_range)
     if threads is not None:
         run_args["threads"] = threads
+    if loop_closure:
+        if kind != "laser":
+            raise RunError("--loop-closure applies to laser data only")
+        run_args["loop_closure"] = True
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint
@@ -381,6 +390,8 @@ def run(
     extra["prefetch"] = bool(plots)
     if max_range is not None:
         extra["max_range"] = float(max_range)
+    if loop_closure:
+        extra["loop_closure"] = True
     if bag:
         extra["bag"] = bag
     viz = _open_viz(rerun, rerun_spawn, dataset_name)

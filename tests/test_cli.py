@@ -229,6 +229,19 @@ def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypa
     assert json.loads((interrupted / "run.json").read_text())["keyframes"] == {"linear": 0.4}
 
 
+def test_loop_closure_flag_is_recorded_and_for_laser_data_only(capsys, tmp_path):
+    out = tmp_path / "closure"
+    assert run_cli("run", "--out", str(out), "--algorithm", "srupf-gm", "--particles", "2", "--max-steps", "6",
+                   "--no-progress", "--no-plots", "--loop-closure") == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["loop_closure"] is True and summary["closures"] >= 0
+    assert isinstance(summary["closure_scans"], list)
+    assert json.loads((out / "run.json").read_text())["loop_closure"] is True
+    capsys.readouterr()
+    assert run_cli("run", "--out", str(tmp_path / "o"), "--algorithm", "erb-upf", "--loop-closure") == 2
+    assert "laser data only" in capsys.readouterr().err
+
+
 def test_keyframe_thresholds_are_for_laser_data_only(capsys, tmp_path):
     assert run_cli("run", "--out", str(tmp_path / "o"), "--linear-update", "0.5") == 2
     assert "laser data only" in capsys.readouterr().err

@@ -187,7 +187,7 @@ def differentiable_scan_step(
     )
     # The factor update of the filter itself, from its keyframe control (as per_scan
     # computes it: a deterministic function of the same inputs) and corrected poses.
-    motion, _, _ = track(fixed, control.increment, observation, fixed_params, config)
+    motion, *_ = track(fixed, control.increment, observation, fixed_params, config)
     scale = tracked_noise_scale(params, config)
     prediction = jax.vmap(srupf.predict, (0, 0, None, None, None))(fixed.poses, carry.pose_sqrt_covs, motion, params,
                                                                    scale)

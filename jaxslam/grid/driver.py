@@ -61,6 +61,8 @@ def summarise(info) -> dict[str, Any]:
         "motion": info.motion,
         "track_score": info.track_score,
         "track_accepted": info.track_accepted,
+        "track_closed": info.track_closed,
+        "track_conflict": info.track_conflict,
     }
 
 

@@ -45,7 +45,8 @@ from jaxslam.metrics.trajectory_io import se2_between
 
 ALGORITHMS = algorithms("laser")
 # Per-scan outputs of the run kept for every scan (the rest is kept per keyframe).
-PER_SCAN_KEYS = ("poses", "ancestors", "keyframe", "motion", "track_score", "track_accepted")
+PER_SCAN_KEYS = ("poses", "ancestors", "keyframe", "motion", "track_score", "track_accepted", "track_closed",
+                 "track_conflict")
 
 def keyframe_rule(linear=None, angular=None, temporal=None, algorithm: str = "srupf-gm") -> tuple[float, float, float]:
     """``(linear, angular, temporal)`` thresholds: the given ones, else the filter's
@@ -128,7 +129,14 @@ class GridSlamResult:
             "map_growths": len(self.growths),
             "map_growth_steps": [g["step"] for g in self.growths],
             "xla_compiler_options": dict(self.compiler_options),
+            **self.closure_summary(),
         }
+
+    def closure_summary(self) -> dict[str, Any]:
+        """How often the loop-closure search replaced the tracking's match
+        (:mod:`jaxslam.grid.closure`) and at which scans (the first 100)."""
+        closed = np.flatnonzero(np.asarray(self.info.get("track_closed", np.zeros(0, bool)), bool)) + 1
+        return {"closures": int(closed.shape[0]), "closure_scans": closed[:100].tolist()}
 
 
 def _dataset_name(log_or_name) -> str:

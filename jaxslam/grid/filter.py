@@ -205,6 +205,8 @@ def finish_step(
         motion=jnp.zeros_like(state.motion),
         track_score=jnp.zeros((), log_weights.dtype),
         track_accepted=jnp.asarray(False),
+        track_closed=jnp.asarray(False),
+        track_conflict=jnp.zeros((), log_weights.dtype),
     )
     return new_state, info
 
@@ -229,6 +231,8 @@ def empty_info(state: GridSlamState, config: GridSlamConfig) -> GridSlamInfo:
         motion=state.motion,
         track_score=zero,
         track_accepted=jnp.asarray(False),
+        track_closed=jnp.asarray(False),
+        track_conflict=zero,
     )
 
 

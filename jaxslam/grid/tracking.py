@@ -19,6 +19,8 @@ For scan :math:`t` with the odometry increment :math:`u_t` since scan :math:`t-1
        \text{ from } \hat x \text{ (GMapping's matcher, lstep/astep)}; \text{ again from }
        \hat x \oplus (0, 0, \pm\delta) \text{ if that scores above } s
        \ (\delta = \texttt{track\_turn}) \\
+    x^*, s &\leftarrow \text{the loop-closure search's pose and score, where } s/n <
+       \texttt{closure\_trigger} \text{ and it wins (below)} \\
     x^\dagger &= \big(\hat x_{xy} + \Pi\,(x^*_{xy} - \hat x_{xy}),\ x^*_\theta\big)
        \quad (\Pi: \text{the directions the scan constrains, } \texttt{constrained\_shift}) \\
     m_t &= \ominus a \oplus x^\dagger \ \text{if } s / n > \text{track\_min\_score},
@@ -49,6 +51,12 @@ climbing, already beats the converged match: starting every match from the best 
 the three guesses instead fixed that seed but broke Intel seed 3 (0.158 m, worst
 relation 6.4 m), where a turned start that scored better than the plain guess climbed
 to a worse optimum than the plain match would have.
+
+A match that scores under ``closure_trigger`` may be a place mapped long ago, met
+again beyond the hill climb's reach (after a long loop the guess can be metres and
+degrees off the old map): :mod:`jaxslam.grid.closure` then searches wide around it and
+takes the best pose it finds where that scores clearly better (its module docstring
+has the rule and the MIT Killian case).
 
 A match that is not trusted keeps the odometry: the tracking falls back instead of
 jumping. Untrusted is a score under ``track_min_score`` (a featureless or changed
@@ -114,6 +122,7 @@ from jax import Array
 from jaxslam.core import se2
 from jaxslam.datasets.geometry import se2_compose
 from jaxslam.driver import best_particle
+from jaxslam.grid.closure import close_loop
 from jaxslam.grid.filter import empty_info, match_geometry, particle_reader, score_model
 from jaxslam.grid.matching import hill_climb_match
 from jaxslam.grid.score import make_score_fn
@@ -121,13 +130,16 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Od
 
 
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
-    """The tracked motion after one scan: ``(motion (3,), score (), accepted ())``."""
+    """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
+    conflict ())`` (``closed``: the loop-closure search's pose replaced the local match;
+    ``conflict``: the share of its beams ending in known free space; see
+    :mod:`jaxslam.grid.closure`)."""
     dtype = state.poses.dtype
     best = best_particle(state)
     anchor = state.poses[best]
     predicted = se2.compose(state.motion, increment.astype(dtype))
     if not config.tracking:
-        return predicted, jnp.zeros((), dtype), jnp.asarray(False)
+        return predicted, jnp.zeros((), dtype), jnp.asarray(False), jnp.asarray(False), jnp.zeros((), dtype)
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
@@ -156,11 +168,15 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
 
     matched, score = jax.lax.fori_loop(0, 2, attempt, (guess, jnp.full((), -jnp.inf, dtype)))
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
+    closed, conflict = jnp.asarray(False), jnp.zeros((), dtype)
+    if config.closure:
+        matched, score, closed, conflict = close_loop(score_fn, read, config.layout, local_points, mask, params.laser_offset,
+                                            matched, score, count, params, config)
     score = score / count
     pose = constrained_pose(score_fn, matched, guess, score * count, count, params)
     accepted = score > params.track_min_score
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
-    return motion, score, accepted
+    return motion, score, accepted, closed, conflict
 
 
 def constrained_pose(score_fn, matched: Array, start: Array, score: Array, count: Array,
@@ -250,7 +266,7 @@ def per_scan(keyframe_step):
              config: GridSlamConfig):
         control = as_odometry(control)
         dtype = state.poses.dtype
-        motion, score, accepted = track(state, control.increment, observation, params, config)
+        motion, score, accepted, closed, conflict = track(state, control.increment, observation, params, config)
         delta = se2.relative(state.motion, motion)
         since = state.since_keyframe + jnp.stack([
             jnp.hypot(delta[0], delta[1]), jnp.abs(delta[2]), jnp.asarray(0.0 if control.dt is None else control.dt, dtype),
@@ -265,11 +281,13 @@ def per_scan(keyframe_step):
                 motion=jnp.where(applied, jnp.zeros_like(motion), state.motion),
                 since_keyframe=jnp.where(applied, jnp.zeros_like(since), state.since_keyframe),
             )
-            return new, info._replace(track_score=score, track_accepted=accepted)
+            return new, info._replace(track_score=score, track_accepted=accepted, track_closed=closed,
+                                      track_conflict=conflict)
 
         def between(key, state):
             state = state._replace(motion=motion, since_keyframe=since)
-            return state, empty_info(state, config)._replace(track_score=score, track_accepted=accepted)
+            return state, empty_info(state, config)._replace(track_score=score, track_accepted=accepted,
+                                                             track_closed=closed, track_conflict=conflict)
 
         return jax.lax.cond(is_keyframe(since, params), keyframe, between, key, state)
 

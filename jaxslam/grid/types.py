@@ -55,6 +55,13 @@ class GridSlamConfig:
             :func:`jaxslam.grid.experiment.make_config` turns it on for SRUPF-GM and
             off for the GMapping-style filter (GMapping's own correction; the
             suite's measurement is in :mod:`jaxslam.grid.gmapping`).
+        closure: where the tracking's match scores under ``closure_trigger``, search
+            wide for a better one (:mod:`jaxslam.grid.closure`: a place mapped long
+            ago, met again metres and degrees off). Off by default: it closes MIT
+            Killian's loops, but it also took false closures on Intel (measured in
+            the module docstring); ``jaxslam run --loop-closure`` turns it on.
+        closure_radius: the search's reach in position (m, each axis).
+        closure_turn: the search's reach in heading (rad, either way).
     """
 
     num_particles: int
@@ -73,6 +80,9 @@ class GridSlamConfig:
     window_range: float = 20.0
     tracking: bool = True
     constrain_matches: bool = True
+    closure: bool = False
+    closure_radius: float = 4.0
+    closure_turn: float = 0.14
 
     def __post_init__(self):
         choices = {
@@ -125,6 +135,12 @@ class GridSlamParams(NamedTuple):
     ``track_turn`` (rad): the tracking match also scores its guess turned by this much
     either way and climbs again from the better one when it beats the converged match
     (0: never; a turn the odometry missed, see :func:`jaxslam.grid.tracking.track`).
+    Loop closure (:mod:`jaxslam.grid.closure`, with ``config.closure``): a tracking
+    match scoring under ``closure_trigger`` whose beams end in known free space for at
+    least ``closure_conflict`` of them starts a wide search, whose best pose replaces
+    it if it scores at least ``closure_min_score`` and ``closure_gain`` times the
+    match (all fractions of the matched beams; a trigger of 0 turns the search off
+    without recompiling).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -159,6 +175,10 @@ class GridSlamParams(NamedTuple):
     track_min_curvature: Array
     track_noise_scale: Array
     track_turn: Array
+    closure_trigger: Array
+    closure_conflict: Array
+    closure_min_score: Array
+    closure_gain: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -259,6 +279,10 @@ def default_params(
         "track_min_curvature": 20.0,
         "track_noise_scale": 0.2,
         "track_turn": 0.15,
+        "closure_trigger": 0.25,
+        "closure_conflict": 0.0,
+        "closure_min_score": 0.35,
+        "closure_gain": 1.5,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,
@@ -324,6 +348,8 @@ class GridSlamInfo(NamedTuple):
     motion: Array  # (3,) tracked motion since the last keyframe after this scan (0 at one)
     track_score: Array  # () tracking match score (fraction of matched beams)
     track_accepted: Array  # () bool: the tracking match replaced the odometry
+    track_closed: Array  # () bool: the loop-closure search's pose replaced the local match
+    track_conflict: Array  # () share of the tracking match's beams ending in known free space
 
 
 class Odometry(NamedTuple):

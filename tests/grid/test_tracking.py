@@ -10,13 +10,12 @@ import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose
 from jaxslam.datasets.keyframes import select_keyframes
-from jaxslam.datasets.laser_sim import simulate
 from jaxslam.grid import srupf
-from jaxslam.grid.experiment import make_config, map_layout, run_grid_slam
-from jaxslam.grid.filter import init, integrate_scan
+from jaxslam.grid.experiment import make_config, run_grid_slam
 from jaxslam.grid.tracking import constrained_shift, is_keyframe, scan_trajectory
 from jaxslam.grid.tracking import track as _track
 from jaxslam.grid.types import Scan, default_params
+from tests.grid.sim_state import state_and_scans
 
 
 def _compose_all(start, increments):
@@ -25,11 +24,6 @@ def _compose_all(start, increments):
     for i, u in enumerate(increments):
         poses[i + 1] = se2_compose(poses[i], u)
     return poses
-
-
-@pytest.fixture(scope="module")
-def sim():
-    return simulate(width=12.0, height=8.0, rooms_x=2, laps=0.6, num_beams=91, seed=2)
 
 
 @pytest.fixture(scope="module")
@@ -81,30 +75,14 @@ def test_odometry_that_misses_turns_is_mapped_with_the_defaults(blind_turns):
     assert _position_error(blind, blind_turns).mean() > 5 * err.mean()
 
 
-def _state_and_scans(sim):
-    params = default_params(sim.angles, sim.laser_offset, dtype=np.float64)
-    layout = map_layout(sim, np.arange(sim.num_scans), 0.05, 3.0, 2, 20.0)
-    config = make_config("srupf-gm", 2, layout, sim.num_beams, 4096)
-    scans = [Scan(np.where(sim.valid[i], sim.ranges[i], 0.0), sim.valid[i], 0.0) for i in range(sim.num_scans)]
-    with jax.enable_x64(True):
-        state = jax.jit(init, static_argnums=2)(jax.random.PRNGKey(0), params, config, scans[0], sim.true_poses[0])
-        # Two more scans at their true poses, so that the walls score well (one hit
-        # is half of occ_saturation).
-        maps = state.maps
-        integrate = jax.jit(integrate_scan, static_argnums=4)
-        for i in (1, 2):
-            maps, _, _ = integrate(maps, np.repeat(sim.true_poses[i][None], 2, 0), scans[i], params, config)
-    return state._replace(maps=maps), scans, params, config
-
-
 def test_tracking_corrects_a_wrong_increment_and_falls_back_on_a_bad_match(sim):
     # Compiled once per config (eagerly, op by op in float64, the four calls took 30 s).
     track = jax.jit(_track, static_argnums=4)
     with jax.enable_x64(True):
-        state, scans, params, config = _state_and_scans(sim)
+        state, scans, params, config = state_and_scans(sim)
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = true_step + np.array([0.03, -0.02, 0.04])
-        motion, score, accepted = track(state, wrong, scans[3], params, config)
+        motion, score, accepted, *_ = track(state, wrong, scans[3], params, config)
         assert bool(accepted) and float(score) > float(params.track_min_score)
         # The match removes most of the heading error of the odometry increment; in
         # this corridor the position along it is weakly constrained, so the position
@@ -118,21 +96,21 @@ def test_tracking_corrects_a_wrong_increment_and_falls_back_on_a_bad_match(sim):
         # scores below track_min_score: the odometry is kept exactly, no jump.
         rng = np.random.default_rng(0)
         junk = Scan(rng.permutation(np.asarray(scans[3].ranges)), scans[3].valid, 0.0)
-        motion, score, accepted = track(state, wrong, junk, params, config)
+        motion, score, accepted, *_ = track(state, wrong, junk, params, config)
         assert not bool(accepted) and float(score) < float(params.track_min_score)
         np.testing.assert_allclose(np.asarray(motion), wrong, atol=1e-12)
 
         # Where the score is not curved enough (here: nowhere) the position keeps the
         # odometry's and only the heading is corrected.
         flat = params._replace(track_min_curvature=np.float64(1e9))
-        motion, _, accepted = track(state, wrong, scans[3], flat, config)
+        motion, _, accepted, *_ = track(state, wrong, scans[3], flat, config)
         assert bool(accepted)
         np.testing.assert_allclose(np.asarray(motion)[:2], wrong[:2], atol=1e-12)
         assert abs(float(se2_between(true_step[None], np.asarray(motion)[None])[0, 2])) < 0.25 * 0.04
 
         # tracking=False: the odometry alone, no match.
         off = dataclasses.replace(config, tracking=False)
-        motion, _, accepted = track(state, wrong, scans[3], params, off)
+        motion, _, accepted, *_ = track(state, wrong, scans[3], params, off)
         assert not bool(accepted)
         np.testing.assert_allclose(np.asarray(motion), wrong, atol=1e-12)
 
@@ -215,7 +193,7 @@ def test_keyframe_correction_moves_only_along_constrained_directions(sim):
     from jaxslam.grid.filter import match_geometry, particle_reader
 
     with jax.enable_x64(True):
-        state, scans, params, config = _state_and_scans(sim)
+        state, scans, params, config = state_and_scans(sim)
         # "posterior" starts the corrector at the predicted mean (no random draw).
         config = dataclasses.replace(config, sampling="posterior", matcher="ellipse")
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
@@ -252,7 +230,7 @@ def test_gmapping_correction_moves_only_along_constrained_directions(sim):
     from jaxslam.grid.gmapping import correct_pose
 
     with jax.enable_x64(True):
-        state, scans, params, config = _state_and_scans(sim)
+        state, scans, params, config = state_and_scans(sim)
         config = dataclasses.replace(config, matcher="hill")
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         proposal = se2_compose(np.asarray(state.poses[0]), true_step + np.array([0.03, -0.02, 0.04]))
@@ -294,7 +272,7 @@ def test_keyframe_control_carries_the_tracked_noise_scale(sim):
 
     step = jax.jit(per_scan(recording_keyframe_step), static_argnums=5)
     with jax.enable_x64(True):
-        state, scans, params, config = _state_and_scans(sim)
+        state, scans, params, config = state_and_scans(sim)
         params = params._replace(linear_update=np.float64(0.0), track_noise_scale=np.float64(0.25))
         # The state's particles are at scan 0 with no motion tracked since.
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
@@ -319,13 +297,13 @@ def test_tracking_finds_a_turn_beyond_the_hill_climbs_reach(sim):
     the plain match's."""
     track = jax.jit(_track, static_argnums=4)
     with jax.enable_x64(True):
-        state, scans, params, config = _state_and_scans(sim)
+        state, scans, params, config = state_and_scans(sim)
         plain = params._replace(track_turn=np.float64(0.0))
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         for miss in (0.15, -0.15):
             wrong = true_step + np.array([0.0, 0.0, miss])
-            motion, score, accepted = track(state, wrong, scans[3], params, config)
-            motion0, score0, _ = track(state, wrong, scans[3], plain, config)
+            motion, score, accepted, *_ = track(state, wrong, scans[3], params, config)
+            motion0, score0, *_ = track(state, wrong, scans[3], plain, config)
             error = np.abs(se2_between(true_step[None], np.asarray(motion)[None])[0])
             error0 = np.abs(se2_between(true_step[None], np.asarray(motion0)[None])[0])
             assert bool(accepted) and error[2] < 0.005 and np.hypot(*error[:2]) < 0.02, (miss, error)

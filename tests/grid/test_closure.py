@@ -1,0 +1,162 @@
+"""Loop-closure search (jaxslam.grid.closure): the coarse map and candidate scores
+against NumPy references, a far-off guess closed onto the map, and a good match left
+alone."""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxslam.datasets.geometry import se2_between, se2_compose
+from jaxslam.grid.closure import POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half
+from jaxslam.grid.map import GridSpec, dense_reader
+from jaxslam.grid.tracking import track as _track
+from tests.grid.sim_state import state_and_scans
+
+
+def test_coarse_window_is_the_pooled_and_dilated_occupancy():
+    """Clip to [0, sat] / sat, max over POOL x POOL cells, then over 3 x 3 coarse
+    neighbours (zero beyond the window); cells outside the map read as unknown (0)."""
+    rng = np.random.default_rng(0)
+    spec = GridSpec(40, 50, 0.05, -1.0, -0.5)
+    grid = rng.integers(-30, 30, spec.shape).astype(np.int8)
+    half = 12
+    centre = np.array([0.31, 0.42])
+    window = jax.jit(lambda g, c: coarse_window(dense_reader(g, spec), spec, c, half, 8.0))
+    coarse, corner = window(jnp.asarray(grid), jnp.asarray(centre))
+
+    c0 = np.floor((centre - [spec.origin_x, spec.origin_y]) / spec.resolution).astype(int) - half
+    occ = np.zeros((2 * half, 2 * half))
+    for r in range(2 * half):
+        for c in range(2 * half):
+            row, col = c0[1] + r, c0[0] + c
+            if 0 <= row < spec.height and 0 <= col < spec.width:
+                occ[r, c] = min(max(float(grid[row, col]), 0.0), 8.0) / 8.0
+    n = 2 * half // POOL
+    pooled = occ.reshape(n, POOL, n, POOL).max(axis=(1, 3))
+    padded = np.pad(pooled, 1)
+    want = np.max([padded[i:i + n, j:j + n] for i in range(3) for j in range(3)], axis=0)
+    np.testing.assert_allclose(np.asarray(coarse), want, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(corner), [spec.origin_x, spec.origin_y] + c0 * spec.resolution, atol=1e-9)
+
+
+def test_candidate_scores_equal_a_numpy_loop():
+    rng = np.random.default_rng(1)
+    n, cell = 30, 0.1
+    coarse = rng.uniform(0, 1, (n, n))
+    corner = np.array([-1.5, -1.0])
+    start = np.array([0.1, 0.4, 0.3])
+    offset = np.array([0.2, 0.05, 0.01])
+    points = rng.uniform(-1.2, 1.2, (17, 2))
+    weights = rng.uniform(0, 1, 17) * (rng.uniform(size=17) > 0.2)
+    turns = np.array([-0.05, 0.0, 0.04])
+    shifts = np.array([-0.4, -0.2, 0.0, 0.2, 0.4])
+    with jax.enable_x64(True):
+        got = np.asarray(jax.jit(candidate_scores, static_argnums=2)(
+            jnp.asarray(coarse), jnp.asarray(corner), cell, jnp.asarray(start), jnp.asarray(points),
+            jnp.asarray(weights), jnp.asarray(offset), jnp.asarray(turns), jnp.asarray(shifts)))
+    want = np.zeros((3, 5, 5))
+    for k, turn in enumerate(turns):
+        pose = start + [0.0, 0.0, turn]
+        sensor = se2_compose(pose[None], offset[None])[0]
+        c, s = math.cos(sensor[2]), math.sin(sensor[2])
+        world = sensor[:2] + points @ np.array([[c, s], [-s, c]])
+        for i, dy in enumerate(shifts):
+            for j, dx in enumerate(shifts):
+                for b in range(points.shape[0]):
+                    col = math.floor((world[b, 0] + dx - corner[0]) / cell)
+                    row = math.floor((world[b, 1] + dy - corner[1]) / cell)
+                    if weights[b] > 0 and 0 <= col < n and 0 <= row < n:
+                        want[k, i, j] += weights[b] * coarse[row, col]
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_conflict_counts_end_points_in_known_free_space_only():
+    """Beams ending in seen-through cells count; beams ending in unknown cells (new
+    ground), next to an occupied cell, or with weight 0 do not."""
+    spec = GridSpec(40, 40, 0.05)
+    grid = np.zeros(spec.shape, np.int8)
+    grid[:20] = -5  # rows 0-19 (y < 1 m) seen through
+    grid[5, 30] = 12  # one wall cell inside the free part
+    free = [[0.3 + 0.1 * i, 0.5] for i in range(8)]  # cells (6..20, 10): free around
+    unknown = [[0.3 + 0.1 * i, 1.6] for i in range(8)]  # row 32: unknown
+    by_wall = [[1.52, 0.27]]  # cell (30, 5)'s neighbour
+    points = np.array(free + unknown + by_wall)
+    weights = np.ones(len(points))
+    weights[0] = 0.0
+    got = jax.jit(lambda g, p, w: conflict_fraction(dense_reader(g, spec), spec, jnp.zeros(3), p, w, jnp.zeros(3),
+                                                    jnp.asarray(16.0)))(jnp.asarray(grid), jnp.asarray(points),
+                                                                        jnp.asarray(weights))
+    assert float(got) == pytest.approx(7 / 16)
+
+
+def test_window_holds_every_searched_end_point():
+    spec = GridSpec(8, 8, 0.05)
+    half = window_half(spec, 4.0)
+    assert half % POOL == 0 and half * spec.resolution >= 20.0 + 4.0
+    assert TURN_STEP == pytest.approx(math.radians(1.0))
+
+
+@pytest.fixture(scope="module")
+def tracked(sim):
+    track = jax.jit(_track, static_argnums=4)
+    with jax.enable_x64(True):
+        state, scans, params, config = state_and_scans(sim)
+    assert not config.closure  # off by default
+    return track, state, scans, params, dataclasses.replace(config, closure=True)
+
+
+def test_a_guess_metres_off_is_closed_onto_the_map(sim, tracked):
+    """The odometry puts scan 3 1.6 m and 5 deg off (beyond the hill climb's reach):
+    the local match scores under the trigger, the search finds the true pose and
+    replaces it. With the trigger at 0 (no search) the same scan is left off: the test
+    can fail."""
+    track, state, scans, params, config = tracked
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        motion, score, accepted, closed, _ = track(state, wrong, scans[3], params, config)
+        off = params._replace(closure_trigger=np.float64(0.0))
+        motion0, score0, _, closed0, _ = track(state, wrong, scans[3], off, config)
+        default = track(state, wrong, scans[3], params, dataclasses.replace(config, closure=False))
+    error = se2_between(true_step[None], np.asarray(motion)[None])[0]
+    error0 = se2_between(true_step[None], np.asarray(motion0)[None])[0]
+    assert bool(closed) and bool(accepted), (score, error)
+    assert np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5), error
+    assert float(score) >= float(params.closure_min_score)
+    assert not bool(closed0) and float(score0) < float(params.closure_trigger)
+    assert np.hypot(*error0[:2]) > 0.5, error0
+    # The default config (no search compiled in) tracks like the trigger at 0.
+    np.testing.assert_allclose(np.asarray(default[0]), np.asarray(motion0), atol=1e-12)
+    assert not bool(default[3])
+
+
+def test_a_good_match_is_left_alone(sim, tracked):
+    """A match that scores above the trigger never runs the search: the tracked motion
+    is the one without it, bit for bit."""
+    track, state, scans, params, config = tracked
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = true_step + np.array([0.03, -0.02, 0.04])
+        got = track(state, wrong, scans[3], params, config)
+        without = track(state, wrong, scans[3], params._replace(closure_trigger=np.float64(0.0)), config)
+    assert float(got[1]) > float(params.closure_trigger) and not bool(got[3])
+    for a, b in zip(got, without, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_closure_that_does_not_beat_the_gain_is_refused(sim, tracked):
+    """The same far-off scan with a gain no candidate can reach: the search runs but
+    the local match stays (closed False)."""
+    track, state, scans, params, config = tracked
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        strict = params._replace(closure_gain=np.float64(1e6))
+        motion, _, _, closed, _ = track(state, wrong, scans[3], strict, config)
+        plain = track(state, wrong, scans[3], params._replace(closure_trigger=np.float64(0.0)), config)
+    assert not bool(closed)
+    np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
