@@ -64,7 +64,7 @@ median seed from 1.01 to 0.59 m, while the worst seed rises from 1.50 to 1.62 m.
 Intel no relation is worse than 1 m, but one seed in five is worse (0.060 m). Earlier
 versions of the same rule in other compiled programs (float rounding differs) gave
 Killian 0.19 / 0.19 / 1.88 / 0.20 / 0.36 m and, on Intel, relations 2.5-5.5 m off
-after false closures in 3 of 17 runs of either filter whose seeds are clean without
+after false closures in 3 of 15 runs (both filters) of seeds that are clean without
 the search. The search is therefore off by default
 (``config.closure``; ``jaxslam run --loop-closure``). The conflict test
 (``closure_conflict``, default 0: off) was meant to keep the search off new ground
