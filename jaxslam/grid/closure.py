@@ -61,7 +61,10 @@ pose the benchmark relations imply, after jumps of 1.5-4.8 m) and the map is one
 building, but in others a wrong closure (a jump of 3-5 m that the relations put
 6-10 m off) doubles a part of the map: the mean falls from 1.10 to 0.82 m and the
 median seed from 1.01 to 0.59 m, while the worst seed rises from 1.50 to 1.62 m. On
-Intel no relation is worse than 1 m, but one seed in five is worse (0.060 m). Earlier
+Intel no relation is worse than 1 m, but one seed in five is worse (0.060 m). On the
+perturbed logs of the robustness suite (README, "Loop-closure search") the worst seed
+improves on MIT CSAIL, FHW and the infinite corridor (FHW 0.394 -> 0.077 m) and
+worsens on Orebro, Acapulco and the campus. Earlier
 versions of the same rule in other compiled programs (float rounding differs) gave
 Killian 0.19 / 0.19 / 1.88 / 0.20 / 0.36 m and, on Intel, relations 2.5-5.5 m off
 after false closures in 3 of 15 runs (both filters) of seeds that are clean without
