@@ -101,6 +101,7 @@ from jax import Array
 from jaxslam.core import se2
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import hill_climb_match
+from jaxslam.grid.score import cell_coords
 
 POOL = 2
 """Fine cells per coarse cell along each axis (10 cm coarse cells at 5 cm)."""
@@ -133,7 +134,7 @@ def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation)
     dtype = centre.dtype
     res = frame.resolution
     origin = jnp.asarray([frame.origin_x, frame.origin_y], dtype)
-    c0 = jnp.floor((centre - origin) / jnp.asarray(res, dtype)).astype(jnp.int32) - half
+    c0 = jnp.floor(cell_coords(centre, frame)).astype(jnp.int32) - half
     cols = c0[0] + jnp.arange(2 * half, dtype=jnp.int32)
     rows = c0[1] + jnp.arange(2 * half, dtype=jnp.int32)
     sat = jnp.asarray(saturation, dtype)
@@ -213,8 +214,7 @@ def conflict_fraction(read: CellReader, frame, pose: Array, local_points: Array,
     dtype = pose.dtype
     sensor = se2.compose(pose, laser_offset.astype(dtype))
     world = se2.transform_points(sensor, local_points.astype(dtype))
-    origin = jnp.asarray([frame.origin_x, frame.origin_y], dtype)
-    cell = jnp.floor((world - origin) / jnp.asarray(frame.resolution, dtype)).astype(jnp.int32)
+    cell = jnp.floor(cell_coords(world, frame)).astype(jnp.int32)
     highest = read(cell[:, 0] - 1, cell[:, 1] - 1)
     for dc, dr in ((i, j) for i in (-1, 0, 1) for j in (-1, 0, 1) if (i, j) != (-1, -1)):
         highest = jnp.maximum(highest, read(cell[:, 0] + dc, cell[:, 1] + dr))

@@ -59,7 +59,7 @@ def bilinear_occupancy(read: CellReader, points: Array, frame, saturation) -> Ar
         saturation: log-odds step count at which a cell counts as fully occupied.
     """
     dtype = points.dtype
-    u = _cell_coords(points, frame) - 0.5
+    u = cell_coords(points, frame) - 0.5
     base = jnp.floor(u)
     frac = u - base
     base = base.astype(jnp.int32)
@@ -91,7 +91,7 @@ def gaussian_window_occupancy(read: CellReader, points: Array, frame, saturation
     unknown.
     """
     dtype = points.dtype
-    u = _cell_coords(points, frame)
+    u = cell_coords(points, frame)
     cell = jnp.floor(u).astype(jnp.int32)
     col0 = cell[..., 0] - 1
     row0 = cell[..., 1] - 1
@@ -114,7 +114,7 @@ def gaussian_nearest_occupancy(read: CellReader, points: Array, frame, saturatio
     r"""Like :func:`gaussian_window_occupancy` over the 2 x 2 cells whose centres
     surround the end point (the bilinear stencil): 4 cells per beam."""
     dtype = points.dtype
-    u = _cell_coords(points, frame) - 0.5
+    u = cell_coords(points, frame) - 0.5
     base = jnp.floor(u)
     col0 = base[..., 0].astype(jnp.int32)
     row0 = base[..., 1].astype(jnp.int32)
@@ -133,7 +133,7 @@ def gaussian_nearest_occupancy(read: CellReader, points: Array, frame, saturatio
     return best / sat
 
 
-def _cell_coords(points: Array, frame) -> Array:
+def cell_coords(points: Array, frame) -> Array:
     """Continuous cell coordinates ``(col, row)`` of world points."""
     origin = jnp.asarray([frame.origin_x, frame.origin_y], points.dtype)
     return (points - origin) / jnp.asarray(frame.resolution, points.dtype)
@@ -200,7 +200,7 @@ def endpoint_occupancy(
     value = evidence(read, world, frame, model.saturation, model.sigma, kernel)
     if free_check:
         before = se2.transform_points(sensor, free_points(local_points.astype(pose.dtype), frame))
-        cell = jnp.floor(_cell_coords(before, frame)).astype(jnp.int32)
+        cell = jnp.floor(cell_coords(before, frame)).astype(jnp.int32)
         sat = jnp.asarray(model.saturation, value.dtype)
         occ_before = jnp.clip(read(cell[..., 0], cell[..., 1]).astype(value.dtype), 0, sat) / sat
         value = value * (1.0 - occ_before)
@@ -271,6 +271,7 @@ __all__ = [
     "KERNELS",
     "ScoreModel",
     "beam_points",
+    "cell_coords",
     "bilinear_occupancy",
     "endpoint_occupancy",
     "evidence",

@@ -170,8 +170,9 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
     closed, conflict = jnp.asarray(False), jnp.zeros((), dtype)
     if config.closure:
-        matched, score, closed, conflict = close_loop(score_fn, read, config.layout, local_points, mask, params.laser_offset,
-                                            matched, score, count, params, config)
+        matched, score, closed, conflict = close_loop(
+            score_fn, read, config.layout, local_points, mask, params.laser_offset, matched, score, count, params,
+            config)
     score = score / count
     pose = constrained_pose(score_fn, matched, guess, score * count, count, params)
     accepted = score > params.track_min_score
