@@ -126,6 +126,7 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
         status=status,
         motion=jnp.zeros((3,), dtype),
         since_keyframe=jnp.zeros((4,), dtype),
+        closure_memory=jnp.zeros((5,), dtype),
     )
 
 
@@ -189,6 +190,7 @@ def finish_step(
         status=status,
         motion=state.motion,
         since_keyframe=state.since_keyframe,
+        closure_memory=state.closure_memory,
     )
     info = GridSlamInfo(
         poses=map_poses,

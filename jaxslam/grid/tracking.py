@@ -131,15 +131,17 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Od
 
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
-    conflict ())`` (``closed``: the loop-closure search's pose replaced the local match;
-    ``conflict``: the share of its beams ending in known free space; see
+    conflict (), memory (5,))`` (``closed``: the loop-closure search's pose replaced the
+    local match; ``conflict``: the share of its beams ending in known free space;
+    ``memory``: the state's ``closure_memory`` after this scan; see
     :mod:`jaxslam.grid.closure`)."""
     dtype = state.poses.dtype
     best = best_particle(state)
     anchor = state.poses[best]
     predicted = se2.compose(state.motion, increment.astype(dtype))
     if not config.tracking:
-        return predicted, jnp.zeros((), dtype), jnp.asarray(False), jnp.asarray(False), jnp.zeros((), dtype)
+        return (predicted, jnp.zeros((), dtype), jnp.asarray(False), jnp.asarray(False), jnp.zeros((), dtype),
+                state.closure_memory)
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
@@ -168,16 +170,17 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
 
     matched, score = jax.lax.fori_loop(0, 2, attempt, (guess, jnp.full((), -jnp.inf, dtype)))
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
-    closed, conflict = jnp.asarray(False), jnp.zeros((), dtype)
+    closed, conflict, memory = jnp.asarray(False), jnp.zeros((), dtype), state.closure_memory
     if config.closure:
-        matched, score, closed, conflict = close_loop(
-            score_fn, read, config.layout, local_points, mask, params.laser_offset, matched, score, count, params,
-            config)
+        memory = memory.at[4].add(jnp.hypot(increment[0], increment[1]).astype(dtype))
+        matched, score, closed, conflict, memory = close_loop(
+            score_fn, read, config.layout, local_points, mask, params.laser_offset, matched, score, count, memory,
+            params, config)
     score = score / count
     pose = constrained_pose(score_fn, matched, guess, score * count, count, params)
     accepted = score > params.track_min_score
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
-    return motion, score, accepted, closed, conflict
+    return motion, score, accepted, closed, conflict, memory
 
 
 def constrained_pose(score_fn, matched: Array, start: Array, score: Array, count: Array,
@@ -267,7 +270,8 @@ def per_scan(keyframe_step):
              config: GridSlamConfig):
         control = as_odometry(control)
         dtype = state.poses.dtype
-        motion, score, accepted, closed, conflict = track(state, control.increment, observation, params, config)
+        motion, score, accepted, closed, conflict, held = track(state, control.increment, observation, params,
+                                                                config)
         delta = se2.relative(state.motion, motion)
         since = state.since_keyframe + jnp.stack([
             jnp.hypot(delta[0], delta[1]), jnp.abs(delta[2]), jnp.asarray(0.0 if control.dt is None else control.dt, dtype),
@@ -281,12 +285,13 @@ def per_scan(keyframe_step):
             new = new._replace(
                 motion=jnp.where(applied, jnp.zeros_like(motion), state.motion),
                 since_keyframe=jnp.where(applied, jnp.zeros_like(since), state.since_keyframe),
+                closure_memory=jnp.where(applied, held, state.closure_memory),
             )
             return new, info._replace(track_score=score, track_accepted=accepted, track_closed=closed,
                                       track_conflict=conflict)
 
         def between(key, state):
-            state = state._replace(motion=motion, since_keyframe=since)
+            state = state._replace(motion=motion, since_keyframe=since, closure_memory=held)
             return state, empty_info(state, config)._replace(track_score=score, track_accepted=accepted,
                                                              track_closed=closed, track_conflict=conflict)
 

@@ -140,7 +140,10 @@ class GridSlamParams(NamedTuple):
     least ``closure_conflict`` of them starts a wide search, whose best pose replaces
     it if it scores at least ``closure_min_score`` and ``closure_gain`` times the
     match (all fractions of the matched beams; a trigger of 0 turns the search off
-    without recompiling).
+    without recompiling) on ``closure_confirm`` scans in a row (the candidate's
+    correction followed from scan to scan), moving the match by at most
+    ``closure_jump`` (m) or ``closure_drift`` times the odometry distance since the
+    last closure, whichever is more.
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -179,6 +182,9 @@ class GridSlamParams(NamedTuple):
     closure_conflict: Array
     closure_min_score: Array
     closure_gain: Array
+    closure_confirm: Array
+    closure_drift: Array
+    closure_jump: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -283,6 +289,9 @@ def default_params(
         "closure_conflict": 0.0,
         "closure_min_score": 0.35,
         "closure_gain": 1.5,
+        "closure_confirm": 3.0,
+        "closure_drift": 0.5,
+        "closure_jump": 0.5,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,
@@ -329,6 +338,9 @@ class GridSlamState(NamedTuple):
     status: MapStatus
     motion: Array  # (3,) tracked motion since the last keyframe (jaxslam.grid.tracking)
     since_keyframe: Array  # (4,) distance, rotation, time and scans since the last keyframe
+    # (5,) loop closure (jaxslam.grid.closure): the candidate held (world correction (3,),
+    # scans won) and the odometry distance (m) since the last closure
+    closure_memory: Array
 
 
 class GridSlamInfo(NamedTuple):

@@ -106,6 +106,8 @@ def tracked(sim):
     with jax.enable_x64(True):
         state, scans, params, config = state_and_scans(sim)
     assert not config.closure  # off by default
+    # A long way (100 m of odometry) since the last closure: no bound on the jump.
+    state = state._replace(closure_memory=state.closure_memory.at[4].set(100.0))
     return track, state, scans, params, dataclasses.replace(config, closure=True)
 
 
@@ -115,12 +117,13 @@ def test_a_guess_metres_off_is_closed_onto_the_map(sim, tracked):
     replaces it. With the trigger at 0 (no search) the same scan is left off: the test
     can fail."""
     track, state, scans, params, config = tracked
+    at_once = params._replace(closure_confirm=np.float64(1.0))
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        motion, score, accepted, closed, _ = track(state, wrong, scans[3], params, config)
-        off = params._replace(closure_trigger=np.float64(0.0))
-        motion0, score0, _, closed0, _ = track(state, wrong, scans[3], off, config)
+        motion, score, accepted, closed, *_ = track(state, wrong, scans[3], at_once, config)
+        off = at_once._replace(closure_trigger=np.float64(0.0))
+        motion0, score0, _, closed0, *_ = track(state, wrong, scans[3], off, config)
         default = track(state, wrong, scans[3], params, dataclasses.replace(config, closure=False))
     error = se2_between(true_step[None], np.asarray(motion)[None])[0]
     error0 = se2_between(true_step[None], np.asarray(motion0)[None])[0]
@@ -155,8 +158,55 @@ def test_a_closure_that_does_not_beat_the_gain_is_refused(sim, tracked):
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        strict = params._replace(closure_gain=np.float64(1e6))
-        motion, _, _, closed, _ = track(state, wrong, scans[3], strict, config)
+        strict = params._replace(closure_gain=np.float64(1e6), closure_confirm=np.float64(1.0))
+        motion, _, _, closed, *_ = track(state, wrong, scans[3], strict, config)
         plain = track(state, wrong, scans[3], params._replace(closure_trigger=np.float64(0.0)), config)
     assert not bool(closed)
     np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
+
+
+def test_a_candidate_is_held_until_confirmed(sim, tracked):
+    """With ``closure_confirm`` 2 the first scan that finds the far-off pose only holds
+    it (the local match stays); the next scan, from the held state, follows the held
+    correction onto the true pose and closes. A held candidate that the next scan does not confirm (a wrong
+    correction of 2 m) is dropped and the local match kept."""
+    track, state, scans, params, config = tracked
+    confirm = params._replace(closure_confirm=np.float64(2.0))
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        motion, _, _, closed, _, held = track(state, wrong, scans[3], confirm, config)
+        plain = track(state, wrong, scans[3], confirm._replace(closure_trigger=np.float64(0.0)), config)
+        assert not bool(closed) and float(held[3]) == 1.0
+        np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
+        # The next scan (here the same one again) follows and closes.
+        motion2, _, _, closed2, _, held2 = track(state._replace(closure_memory=held), wrong, scans[3], confirm, config)
+        error2 = se2_between(true_step[None], np.asarray(motion2)[None])[0]
+        assert bool(closed2) and not np.any(np.asarray(held2)), held2
+        assert np.hypot(*error2[:2]) < 0.05 and abs(error2[2]) < math.radians(0.5), error2
+        # A wrong held correction loses against a good local match and is dropped.
+        good = true_step + np.array([0.03, -0.02, 0.04])
+        bogus = state._replace(closure_memory=jnp.asarray([2.0, 0.0, 0.0, 1.0, 100.0]))
+        got = track(bogus, good, scans[3], confirm, config)
+        fresh = track(state, good, scans[3], confirm, config)
+    assert not bool(got[3]) and not np.any(np.asarray(got[5][:4]))
+    np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(fresh[0]))
+
+
+def test_a_jump_beyond_the_drift_since_the_last_closure_is_refused(sim, tracked):
+    """Right after a closure (no odometry since) the same 1.6 m closure is refused: the
+    jump bound is ``closure_jump`` 0.5 m plus nothing travelled. With a drift bound
+    that the scan's own odometry makes 1.6 m or more it closes again; the distance
+    restarts from 0 at the closure and adds up over refused scans."""
+    track, state, scans, params, config = tracked
+    at_once = params._replace(closure_confirm=np.float64(1.0))
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        fresh = state._replace(closure_memory=jnp.zeros(5))
+        refused = track(fresh, wrong, scans[3], at_once, config)
+        step = float(np.hypot(*wrong[:2]))
+        loose = at_once._replace(closure_drift=np.float64(1.7 / step))
+        closed = track(fresh, wrong, scans[3], loose, config)
+    assert not bool(refused[3]) and float(refused[5][4]) == pytest.approx(step)
+    assert bool(closed[3]) and float(closed[5][4]) == 0.0
