@@ -270,8 +270,8 @@ def per_scan(keyframe_step):
              config: GridSlamConfig):
         control = as_odometry(control)
         dtype = state.poses.dtype
-        motion, score, accepted, closed, conflict, held = track(state, control.increment, observation, params,
-                                                                config)
+        motion, score, accepted, closed, conflict, memory = track(state, control.increment, observation, params,
+                                                                  config)
         delta = se2.relative(state.motion, motion)
         since = state.since_keyframe + jnp.stack([
             jnp.hypot(delta[0], delta[1]), jnp.abs(delta[2]), jnp.asarray(0.0 if control.dt is None else control.dt, dtype),
@@ -285,13 +285,13 @@ def per_scan(keyframe_step):
             new = new._replace(
                 motion=jnp.where(applied, jnp.zeros_like(motion), state.motion),
                 since_keyframe=jnp.where(applied, jnp.zeros_like(since), state.since_keyframe),
-                closure_memory=jnp.where(applied, held, state.closure_memory),
+                closure_memory=jnp.where(applied, memory, state.closure_memory),
             )
             return new, info._replace(track_score=score, track_accepted=accepted, track_closed=closed,
                                       track_conflict=conflict)
 
         def between(key, state):
-            state = state._replace(motion=motion, since_keyframe=since, closure_memory=held)
+            state = state._replace(motion=motion, since_keyframe=since, closure_memory=memory)
             return state, empty_info(state, config)._replace(track_score=score, track_accepted=accepted,
                                                              track_closed=closed, track_conflict=conflict)
 
