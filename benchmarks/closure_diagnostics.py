@@ -1,0 +1,146 @@
+"""Every loop closure of saved runs, judged right or wrong by the log's relations.
+
+For the runs that ``benchmarks/grid_robustness.py`` keeps (``--work``, default
+``/tmp/grid_robustness/TAG/*.npz``, each with the per-scan ``info_track_closed``,
+``info_track_score`` and ``info_track_conflict``) this lists each scan ``c`` where the
+loop-closure search replaced the tracking's match (:mod:`jaxslam.grid.closure`):
+
+* ``jump``: the position change of the path at ``c`` (m), and ``turn`` (deg);
+* ``travelled``: the path length since the previous closure (m), and ``jump`` over it;
+* ``score``: the tracking score (fraction of the matched beams) at ``c``, and the mean
+  over scans ``c-10 .. c-4`` (``score_before``);
+* ``conflict_before``: the share of the local match's beams ending in known free space
+  just before ``c``; ``conflict_after``: its largest value over the three scans after
+  ``c``, whose local matches start in the closure's frame (what the candidate test
+  ``closure_clash`` measures at the candidate);
+* ``verdict``: with relations (a raw log with benchmark relations), each relation
+  from a scan more than 300 scans before ``c`` to one of scans ``c .. c+60`` implies a
+  position for its later scan from the path's earlier pose; ``R`` (right) if the path
+  is within 0.5 m of the median of those, ``W`` (wrong) otherwise, ``?`` without such
+  relations.
+
+    python benchmarks/closure_diagnostics.py --log mit-killian --runs '/tmp/grid_robustness/s39_kil_drift*/*_drift_s*.npz' \\
+        --name closure_diagnostics_killian
+
+Prints the table, writes ``benchmarks/results/NAME.json`` and ``NAME.png`` (the
+share after the closure against jump / travelled, by verdict).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import RESULTS, print_table, write_json  # noqa: E402
+
+BEFORE = 300
+"""A relation judges a closure when its earlier scan lies this many scans before it."""
+AFTER = 60
+"""... and its later scan within this many scans after it."""
+RIGHT_M = 0.5
+"""The largest median distance (m) to the relation-implied positions of a right closure."""
+
+
+def closures(path: str, relations=None) -> list[dict]:
+    """The closures of one saved run (see the module docstring)."""
+    from jaxslam.datasets.geometry import se2_between, se2_compose
+    from jaxslam.metrics.relations import match_timestamps
+
+    run = np.load(path)
+    path_poses, stamps = run["trajectory"], run["scan_times"]
+    score, conflict = run["info_track_score"], run["info_track_conflict"]
+    closed = np.flatnonzero(run["info_track_closed"]) + 1  # info[i] is scan i + 1
+    length = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path_poses[:, :2], axis=0).T))])
+    if relations is not None:
+        i1, _ = match_timestamps(relations.t1, stamps, 1e-6)
+        i2, _ = match_timestamps(relations.t2, stamps, 1e-6)
+    rows, last = [], 0
+    for c in closed:
+        step = se2_between(path_poses[c - 1][None], path_poses[c][None])[0]
+        travelled = float(length[c - 1] - length[last])
+        verdict, implied_m = "?", None
+        if relations is not None:
+            first, later = np.minimum(i1, i2), np.maximum(i1, i2)
+            judging = np.flatnonzero((i1 >= 0) & (i2 >= 0) & (first < c - BEFORE) & (later >= c) & (later <= c + AFTER))
+            if judging.size:
+                off = []
+                for k in judging:
+                    delta = relations.deltas[k] if i1[k] < i2[k] else se2_between(relations.deltas[k][None], np.zeros((1, 3)))[0]
+                    implied = se2_compose(path_poses[first[k]][None], delta[None])[0]
+                    off.append(float(np.hypot(*(path_poses[later[k], :2] - implied[:2]))))
+                implied_m = float(np.median(off))
+                verdict = "R" if implied_m < RIGHT_M else "W"
+        rows.append({
+            "run": Path(path).stem, "scan": int(c), "jump_m": float(np.hypot(*step[:2])),
+            "turn_deg": float(np.degrees(step[2])), "travelled_m": travelled,
+            "jump_per_m": float(np.hypot(*step[:2]) / max(travelled, 1e-9)),
+            "score": float(score[c - 1]), "score_before": float(score[max(c - 11, 0):max(c - 4, 1)].mean()),
+            "conflict_before": float(conflict[c - 2]), "conflict_after": float(conflict[c:c + 3].max(initial=0.0)),
+            "implied_m": implied_m, "verdict": verdict,
+        })
+        last = c
+    return rows
+
+
+def plot(rows: list[dict], out: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for verdict, colour, label in (("R", "tab:green", "right"), ("W", "tab:red", "wrong"), ("?", "0.6", "no relation")):
+        pick = [r for r in rows if r["verdict"] == verdict]
+        if pick:
+            ax.scatter([r["jump_per_m"] for r in pick], [r["conflict_after"] for r in pick], c=colour,
+                       label=f"{label} ({len(pick)})", s=28, alpha=0.85, edgecolors="none")
+    ax.set_xscale("log")
+    ax.set_xlabel("jump / path length since the previous closure")
+    ax.set_ylabel("beams ending in known free space, 3 scans after (largest)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", action="append", required=True, help="glob of saved runs (.npz); repeatable")
+    ap.add_argument("--log", default=None, help="raw log whose benchmark relations judge the closures")
+    ap.add_argument("--name", default="closure_diagnostics")
+    args = ap.parse_args(argv)
+
+    relations = None
+    if args.log:
+        from jaxslam.metrics.relations import load_dataset_relations
+
+        relations = load_dataset_relations(args.log)
+    paths = sorted({p for pattern in args.runs for p in glob.glob(pattern)})
+    if not paths:
+        raise SystemExit(f"no runs match {args.runs}")
+    rows = [row for p in paths for row in closures(p, relations)]
+    print_table(rows, ["run", "scan", "jump_m", "turn_deg", "travelled_m", "jump_per_m", "score_before", "score",
+                       "conflict_before", "conflict_after", "implied_m", "verdict"])
+    summary = {}
+    for verdict in ("R", "W", "?"):
+        after = np.array([r["conflict_after"] for r in rows if r["verdict"] == verdict])
+        if after.size:
+            summary[verdict] = {"count": int(after.size), "conflict_after_quartiles": np.percentile(after, [25, 50, 75]).tolist(),
+                                "over_0.15": int(np.sum(after > 0.15)), "over_0.10": int(np.sum(after > 0.10))}
+    print(summary)
+    out = write_json(args.name, {"runs": paths, "log": args.log, "closures": rows,
+                                 "summary": summary})
+    plot(rows, RESULTS / f"{args.name}.png", f"{args.log or 'runs'}: loop closures ({len(paths)} runs)")
+    print(f"wrote {out} and {RESULTS / (args.name + '.png')}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,52 @@
+"""benchmarks/closure_diagnostics.py: closures of a saved run are found where the run
+says, measured, and judged right or wrong by relations that span them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jaxslam.metrics.relations import Relations
+
+from . import load_benchmark
+
+closure_diagnostics = load_benchmark("closure_diagnostics")
+
+
+def test_a_right_and_a_wrong_closure(tmp_path):
+    """A path along x, 0.1 m per scan: drifted 2 m sideways from scan 400, put back on
+    the truth by a closure at scan 700 (right), then moved 3 m off by one at scan 900
+    (wrong). Relations from scans 100 and 150 (true poses) to scans 720 and 910 judge
+    them."""
+    n = 1000
+    truth = np.stack([0.1 * np.arange(n), np.zeros(n), np.zeros(n)], -1)
+    path = truth.copy()
+    path[400:700, 1] += 2.0
+    path[900:, 1] += 3.0
+    closed = np.zeros(n - 1, bool)
+    closed[[699, 899]] = True  # info[i] is scan i + 1
+    conflict = np.zeros(n - 1)
+    conflict[700:703] = [0.1, 0.3, 0.2]
+    score = np.full(n - 1, 0.5)
+    score[699] = 0.45  # scan 700, the closure
+    run = tmp_path / "run.npz"
+    np.savez(run, trajectory=path, scan_times=np.arange(n, dtype=float), info_track_closed=closed,
+             info_track_conflict=conflict, info_track_score=score)
+    pairs = [(100, 720), (910, 150)]  # the second one stored backwards
+    deltas = [truth[b] - truth[a] for a, b in pairs]  # headings are 0: frame = world axes
+    relations = Relations(None, np.array([float(a) for a, _ in pairs]), np.array([float(b) for _, b in pairs]),
+                          np.array(deltas), np.arange(1, 3))
+    rows = closure_diagnostics.closures(str(run), relations)
+    assert [r["scan"] for r in rows] == [700, 900]
+    right, wrong = rows
+    assert right["verdict"] == "R" and right["implied_m"] == pytest.approx(0.0, abs=1e-9)
+    assert wrong["verdict"] == "W" and wrong["implied_m"] == pytest.approx(3.0)
+    # Each jump holds that scan's 0.1 m of travel along x.
+    assert right["jump_m"] == pytest.approx(np.hypot(0.1, 2.0)) and wrong["jump_m"] == pytest.approx(np.hypot(0.1, 3.0))
+    # Path length from the start to scan 699 (the drift step at 400 included), then
+    # from the closure at 700 to scan 899.
+    assert right["travelled_m"] == pytest.approx(69.8 + np.hypot(0.1, 2.0))
+    assert wrong["travelled_m"] == pytest.approx(19.9)
+    assert right["conflict_after"] == pytest.approx(0.3) and right["score"] == pytest.approx(0.45)
+    unjudged = closure_diagnostics.closures(str(run), None)
+    assert [r["verdict"] for r in unjudged] == ["?", "?"]
