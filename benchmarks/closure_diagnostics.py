@@ -11,13 +11,13 @@ loop-closure search replaced the tracking's match (:mod:`jaxslam.grid.closure`):
   over scans ``c-10 .. c-4`` (``score_before``);
 * ``conflict_before``: the share of the local match's beams ending in known free space
   just before ``c``; ``conflict_after``: its largest value over the three scans after
-  ``c``, whose local matches start in the closure's frame (what the candidate test
-  ``closure_clash`` measures at the candidate);
-* ``verdict``: with relations (a raw log with benchmark relations), each relation
-  from a scan more than 300 scans before ``c`` to one of scans ``c .. c+60`` implies a
-  position for its later scan from the path's earlier pose; ``R`` (right) if the path
-  is within 0.5 m of the median of those, ``W`` (wrong) otherwise, ``?`` without such
-  relations.
+  ``c``, whose local matches start in the closure's frame (what a test at the
+  candidate would measure; session 40 tried one, see :mod:`jaxslam.grid.closure`);
+* ``verdict``: with relations (a raw log with benchmark relations), the relations
+  from a scan more than 300 scans before ``c`` to one of scans ``c .. c+60`` judge it
+  by their translational errors (:func:`jaxslam.metrics.relations.relation_errors`,
+  the metric's own): ``R`` (right) if their median ``relation_error_m`` is under 0.5
+  m, ``W`` (wrong) otherwise, ``?`` without such relations.
 
     python benchmarks/closure_diagnostics.py --log mit-killian --runs '/tmp/grid_robustness/s39_kil_drift*/*_drift_s*.npz' \\
         --name closure_diagnostics_killian
@@ -44,13 +44,13 @@ BEFORE = 300
 AFTER = 60
 """... and its later scan within this many scans after it."""
 RIGHT_M = 0.5
-"""The largest median distance (m) to the relation-implied positions of a right closure."""
+"""A right closure's judging relations have a median translational error under this (m)."""
 
 
 def closures(path: str, relations=None) -> list[dict]:
     """The closures of one saved run (see the module docstring)."""
-    from jaxslam.datasets.geometry import se2_between, se2_compose
-    from jaxslam.metrics.relations import match_timestamps
+    from jaxslam.datasets.geometry import se2_between
+    from jaxslam.metrics.relations import relation_errors
 
     run = np.load(path)
     path_poses, stamps = run["trajectory"], run["scan_times"]
@@ -58,31 +58,26 @@ def closures(path: str, relations=None) -> list[dict]:
     closed = np.flatnonzero(run["info_track_closed"]) + 1  # info[i] is scan i + 1
     length = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path_poses[:, :2], axis=0).T))])
     if relations is not None:
-        i1, _ = match_timestamps(relations.t1, stamps, 1e-6)
-        i2, _ = match_timestamps(relations.t2, stamps, 1e-6)
+        errors = relation_errors(relations, stamps, path_poses)
+        first = np.minimum(errors.index1, errors.index2)
+        later = np.maximum(errors.index1, errors.index2)
     rows, last = [], 0
     for c in closed:
         step = se2_between(path_poses[c - 1][None], path_poses[c][None])[0]
         travelled = float(length[c - 1] - length[last])
-        verdict, implied_m = "?", None
+        verdict, error_m = "?", None
         if relations is not None:
-            first, later = np.minimum(i1, i2), np.maximum(i1, i2)
-            judging = np.flatnonzero((i1 >= 0) & (i2 >= 0) & (first < c - BEFORE) & (later >= c) & (later <= c + AFTER))
-            if judging.size:
-                off = []
-                for k in judging:
-                    delta = relations.deltas[k] if i1[k] < i2[k] else se2_between(relations.deltas[k][None], np.zeros((1, 3)))[0]
-                    implied = se2_compose(path_poses[first[k]][None], delta[None])[0]
-                    off.append(float(np.hypot(*(path_poses[later[k], :2] - implied[:2]))))
-                implied_m = float(np.median(off))
-                verdict = "R" if implied_m < RIGHT_M else "W"
+            judging = errors.matched & (first < c - BEFORE) & (later >= c) & (later <= c + AFTER)
+            if judging.any():
+                error_m = float(np.median(errors.trans[judging]))
+                verdict = "R" if error_m < RIGHT_M else "W"
         rows.append({
             "run": Path(path).stem, "scan": int(c), "jump_m": float(np.hypot(*step[:2])),
             "turn_deg": float(np.degrees(step[2])), "travelled_m": travelled,
             "jump_per_m": float(np.hypot(*step[:2]) / max(travelled, 1e-9)),
             "score": float(score[c - 1]), "score_before": float(score[max(c - 11, 0):max(c - 4, 1)].mean()),
             "conflict_before": float(conflict[c - 2]), "conflict_after": float(conflict[c:c + 3].max(initial=0.0)),
-            "implied_m": implied_m, "verdict": verdict,
+            "relation_error_m": error_m, "verdict": verdict,
         })
         last = c
     return rows
@@ -128,7 +123,7 @@ def main(argv=None) -> None:
         raise SystemExit(f"no runs match {args.runs}")
     rows = [row for p in paths for row in closures(p, relations)]
     print_table(rows, ["run", "scan", "jump_m", "turn_deg", "travelled_m", "jump_per_m", "score_before", "score",
-                       "conflict_before", "conflict_after", "implied_m", "verdict"])
+                       "conflict_before", "conflict_after", "relation_error_m", "verdict"])
     summary = {}
     for verdict in ("R", "W", "?"):
         after = np.array([r["conflict_after"] for r in rows if r["verdict"] == verdict])

@@ -39,8 +39,8 @@ def test_a_right_and_a_wrong_closure(tmp_path):
     rows = closure_diagnostics.closures(str(run), relations)
     assert [r["scan"] for r in rows] == [700, 900]
     right, wrong = rows
-    assert right["verdict"] == "R" and right["implied_m"] == pytest.approx(0.0, abs=1e-9)
-    assert wrong["verdict"] == "W" and wrong["implied_m"] == pytest.approx(3.0)
+    assert right["verdict"] == "R" and right["relation_error_m"] == pytest.approx(0.0, abs=1e-9)
+    assert wrong["verdict"] == "W" and wrong["relation_error_m"] == pytest.approx(3.0)
     # Each jump holds that scan's 0.1 m of travel along x.
     assert right["jump_m"] == pytest.approx(np.hypot(0.1, 2.0)) and wrong["jump_m"] == pytest.approx(np.hypot(0.1, 3.0))
     # Path length from the start to scan 699 (the drift step at 400 included), then
