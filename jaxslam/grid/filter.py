@@ -31,6 +31,7 @@ from jax import Array
 
 from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
 from jaxslam.driver import best_particle
+from jaxslam.grid.closure import MEMORY
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.score import ScoreModel, beam_points
 from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
@@ -126,7 +127,7 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
         status=status,
         motion=jnp.zeros((3,), dtype),
         since_keyframe=jnp.zeros((4,), dtype),
-        closure_memory=jnp.zeros((5,), dtype),
+        closure_memory=jnp.zeros((MEMORY,), dtype),
     )
 
 

@@ -56,7 +56,10 @@ A match that scores under ``closure_trigger`` may be a place mapped long ago, me
 again beyond the hill climb's reach (after a long loop the guess can be metres and
 degrees off the old map): :mod:`jaxslam.grid.closure` then searches wide around it and
 takes the best pose it finds where that scores clearly better (its module docstring
-has the rule and the MIT Killian case).
+has the rule and the MIT Killian case), and takes a closure back where the scans of
+the next metres keep ending in space the old map has seen through. An undone closure
+moves the pose back whatever the match there scores (it is not refused like an
+untrusted match below).
 
 A match that is not trusted keeps the odometry: the tracking falls back instead of
 jumping. Untrusted is a score under ``track_min_score`` (a featureless or changed
@@ -131,8 +134,8 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Od
 
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
-    conflict (), memory (5,))`` (``closed``: the loop-closure search's pose replaced the
-    local match; ``conflict``: the share of its beams ending in known free space;
+    conflict (), memory (MEMORY,))`` (``closed``: the loop-closure search's pose replaced
+    the local match, or a closure was undone; ``conflict``: the share of its beams ending in known free space;
     ``memory``: the state's ``closure_memory`` after this scan; see
     :mod:`jaxslam.grid.closure`)."""
     dtype = state.poses.dtype
@@ -173,12 +176,19 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     closed, conflict, memory = jnp.asarray(False), jnp.zeros((), dtype), state.closure_memory
     if config.closure:
         memory = memory.at[4].add(jnp.hypot(increment[0], increment[1]).astype(dtype))
-        matched, score, closed, conflict, memory = close_loop(
+        local = matched
+        matched, score, closed, undone, conflict, memory = close_loop(
             score_fn, read, config.layout, local_points, mask, params.laser_offset, matched, score, count, memory,
             params, config)
+        taken, closed = closed, closed | undone
     score = score / count
     pose = constrained_pose(score_fn, matched, guess, score * count, count, params)
     accepted = score > params.track_min_score
+    if config.closure:  # an undone closure is taken back whatever the match says
+        pose = jnp.where(undone, matched, pose)
+        accepted = accepted | undone
+        # the correction a closure applied, as constrained above: what an undo takes back
+        memory = memory.at[5:8].set(jnp.where(taken, se2.compose(pose, se2.inverse(local)), memory[5:8]))
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
     return motion, score, accepted, closed, conflict, memory
 

@@ -143,7 +143,10 @@ class GridSlamParams(NamedTuple):
     without recompiling) on ``closure_confirm`` scans in a row (the candidate's
     correction followed from scan to scan), moving the match by at most
     ``closure_jump`` (m) or ``closure_drift`` times the odometry distance since the
-    last closure, whichever is more.
+    last closure, whichever is more. A closure taken is watched over the next
+    ``closure_watch`` m of odometry: where the share of the tracking's beams ending in
+    known free space averages over ``closure_undo`` there, the closure is undone and
+    its correction refused (1: never; see :mod:`jaxslam.grid.closure`).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -185,6 +188,8 @@ class GridSlamParams(NamedTuple):
     closure_confirm: Array
     closure_drift: Array
     closure_jump: Array
+    closure_watch: Array
+    closure_undo: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -292,6 +297,8 @@ def default_params(
         "closure_confirm": 3.0,
         "closure_drift": 0.5,
         "closure_jump": 0.5,
+        "closure_watch": 5.0,
+        "closure_undo": 0.11,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,
@@ -360,7 +367,7 @@ class GridSlamInfo(NamedTuple):
     motion: Array  # (3,) tracked motion since the last keyframe after this scan (0 at one)
     track_score: Array  # () tracking match score (fraction of matched beams)
     track_accepted: Array  # () bool: the tracking match replaced the odometry
-    track_closed: Array  # () bool: the loop-closure search's pose replaced the local match
+    track_closed: Array  # () bool: the loop-closure search's pose replaced the local match, or a closure was undone
     track_conflict: Array  # () share of the tracking match's beams ending in known free space
 
 

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose
-from jaxslam.grid.closure import POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half
+from jaxslam.grid.closure import (
+    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
+)
 from jaxslam.grid.map import GridSpec, dense_reader
 from jaxslam.grid.tracking import track as _track
 from tests.grid.sim_state import state_and_scans
@@ -182,11 +184,11 @@ def test_a_candidate_is_held_until_confirmed(sim, tracked):
         # The next scan (here the same one again) follows and closes.
         motion2, _, _, closed2, _, held2 = track(state._replace(closure_memory=held), wrong, scans[3], confirm, config)
         error2 = se2_between(true_step[None], np.asarray(motion2)[None])[0]
-        assert bool(closed2) and not np.any(np.asarray(held2)), held2
+        assert bool(closed2) and not np.any(np.asarray(held2)[:5]), held2
         assert np.hypot(*error2[:2]) < 0.05 and abs(error2[2]) < math.radians(0.5), error2
         # A wrong held correction loses against a good local match and is dropped.
         good = true_step + np.array([0.03, -0.02, 0.04])
-        bogus = state._replace(closure_memory=jnp.asarray([2.0, 0.0, 0.0, 1.0, 100.0]))
+        bogus = state._replace(closure_memory=jnp.zeros(MEMORY).at[:5].set(jnp.asarray([2.0, 0.0, 0.0, 1.0, 100.0])))
         got = track(bogus, good, scans[3], confirm, config)
         fresh = track(state, good, scans[3], confirm, config)
     assert not bool(got[3]) and not np.any(np.asarray(got[5][:4]))
@@ -203,10 +205,73 @@ def test_a_jump_beyond_the_drift_since_the_last_closure_is_refused(sim, tracked)
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        fresh = state._replace(closure_memory=jnp.zeros(5))
+        fresh = state._replace(closure_memory=jnp.zeros(MEMORY))
         refused = track(fresh, wrong, scans[3], at_once, config)
         step = float(np.hypot(*wrong[:2]))
         loose = at_once._replace(closure_drift=np.float64(1.7 / step))
         closed = track(fresh, wrong, scans[3], loose, config)
     assert not bool(refused[3]) and float(refused[5][4]) == pytest.approx(step)
     assert bool(closed[3]) and float(closed[5][4]) == 0.0
+
+
+def _watched(state, applied, travelled, conflict_sum, conflict_count, before=7.0, mode=1.0):
+    memory = jnp.zeros(MEMORY).at[4].set(travelled).at[5:8].set(jnp.asarray(applied))
+    memory = memory.at[8].set(mode).at[9].set(conflict_sum).at[10].set(conflict_count).at[11].set(before)
+    memory = memory.at[12:15].set(jnp.asarray(applied))
+    return state._replace(closure_memory=memory)
+
+
+def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, tracked):
+    """Scan 3 tracked in a frame that a closure moved 1.6 m and 5 deg off (the local
+    match stays off, beyond the hill climb's reach). After ``closure_watch`` m with a
+    mean conflict over ``closure_undo`` the closure's correction is taken back and the
+    match lands on the true pose; the distance before the closure is restored and the
+    correction is refused from then on. With a low mean conflict, or before the watch
+    distance, nothing changes but the watch state."""
+    track, state, scans, params, config = tracked
+    undo = params._replace(closure_undo=np.float64(0.11), closure_watch=np.float64(5.0),
+                           closure_trigger=np.float64(0.0))
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        anchor = np.asarray(state.poses[0])
+        off_w = se2_compose(anchor[None], wrong[None])[0]
+        true_w = se2_compose(anchor[None], true_step[None])[0]
+        applied = se2_compose(off_w[None], se2_between(true_w[None], np.zeros((1, 3))))[0]  # off_w = applied (+) true_w
+        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3], undo, config)
+        high = track(_watched(state, applied, 5.5, 3.0, 10.0), wrong, scans[3], undo, config)
+        low = track(_watched(state, applied, 5.5, 0.5, 10.0), wrong, scans[3], undo, config)
+        early = track(_watched(state, applied, 2.0, 3.0, 10.0), wrong, scans[3], undo, config)
+        error = se2_between(true_step[None], np.asarray(high[0])[None])[0]
+        plain_error = se2_between(true_step[None], np.asarray(plain[0])[None])[0]
+    assert np.hypot(*plain_error[:2]) > 1.0  # the local match alone stays off
+    assert bool(high[3]) and np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5), error
+    memory = np.asarray(high[5])
+    assert memory[8] == -1.0 and memory[4] == pytest.approx(5.5 + float(np.hypot(*wrong[:2])) + 7.0)
+    np.testing.assert_allclose(memory[5:8], applied, atol=1e-12)
+    for kept, watching in ((low, 0.0), (early, 1.0)):
+        assert not bool(kept[3])
+        np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(plain[0]))
+        assert float(kept[5][8]) == watching
+    assert float(early[5][10]) == 11.0 and float(early[5][9]) == pytest.approx(3.0 + float(early[4]))
+
+
+def test_a_closure_with_the_undone_correction_is_refused(sim, tracked):
+    """The search's 1.6 m closure of scan 3 closes from a fresh memory and records its
+    correction; after that correction was undone (watch state -1) the same candidate is
+    refused, while a refused correction elsewhere does not stop it."""
+    track, state, scans, params, config = tracked
+    at_once = params._replace(closure_confirm=np.float64(1.0))
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        fresh = state._replace(closure_memory=jnp.zeros(MEMORY).at[4].set(100.0))
+        closed = track(fresh, wrong, scans[3], at_once, config)
+        correction = np.asarray(closed[5][12:15])
+        same = track(_watched(state, correction, 100.0, 0.0, 0.0, mode=-1.0), wrong, scans[3], at_once, config)
+        other = track(_watched(state, correction + [3.0, 0.0, 0.0], 100.0, 0.0, 0.0, mode=-1.0), wrong, scans[3],
+                      at_once, config)
+    assert bool(closed[3]) and float(closed[5][8]) == 1.0 and np.hypot(*correction[:2]) > 1.0
+    assert not bool(same[3]) and float(same[5][8]) == -1.0
+    assert bool(other[3])
+    np.testing.assert_array_equal(np.asarray(other[0]), np.asarray(closed[0]))
