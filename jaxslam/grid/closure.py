@@ -117,6 +117,8 @@ Killian seeds 0-9 0.26 / 1.47 / 1.04 / 0.15 / 0.86 / 0.14 / 1.55 / 0.70 / 0.10 /
 Intel's seed 1 0.044 m against 0.524 m; the perturbed campus 0.296 m (worst seed 0.459)
 against 1.57 m with the search off. It costs Killian's median: right closures undone
 (one that corrected a wrong one 150 scans before met its writes) or not taken later.
+Killian seeds 10-19 in one program with and without the undo (a traced parameter):
+mean 0.78 / median 0.81 / worst 1.62 m against 0.83 / 0.97 / 1.94 m.
 So the undo is the search's default, and the search stays off: perturbed Seattle's
 seed 0 takes a false closure the undo does not catch (0.149 against 0.029 m).
 
