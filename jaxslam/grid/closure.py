@@ -280,7 +280,7 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     correction :math:`A` of the last closure taken (as the tracking applied it; set by
     :func:`jaxslam.grid.tracking.track`), whether it is still watched, the sum and
     count of its scans' conflicts, the distance before it, and the correction the
-    search found for it. ``conflict`` is
+    search found for it (:func:`record_applied`). ``conflict`` is
     :func:`conflict_fraction` at the local match. Without a held
     candidate, a match under the trigger starts the search; with one, the hill climb
     refines :math:`C \oplus x_0` instead. The candidate :math:`x` wins a scan when
@@ -298,11 +298,10 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     exceeds ``closure_undo`` the beams keep ending in space the old map has seen
     through, the closure was an alias, and it is undone: the match climbs again from
     :math:`A^{-1} \oplus x_0`, :math:`d` is restored, and candidates whose correction
-    lies within ``closure_jump`` of the one the search found for it are refused from then on (the same alias
-    would win again).
+    lies within ``closure_jump`` of the one the search found for it are refused from
+    then on (the same alias would win again).
     """
     dtype = matched.dtype
-    fraction = score / count
     conflict = conflict_fraction(read, frame, matched, local_points, weights, laser_offset, count)
     held = memory[:4]
     travelled = memory[4]
@@ -325,7 +324,6 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     holding = held[3] > 0
     triggered = ~undo & ~holding & (score / count < jnp.asarray(params.closure_trigger, dtype)) & (
         conflict >= jnp.asarray(params.closure_conflict, dtype))
-    del fraction
 
     def follow():
         start = se2.compose(held[:3].astype(dtype), matched)
@@ -369,7 +367,14 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     return jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, undo, conflict, memory
 
 
+def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
+    """``memory`` with :math:`A`, the correction the tracking applied for a closure
+    just ``taken`` (its pose over the local match, after the tracking's constraint),
+    which an undo takes back."""
+    return memory.at[5:8].set(jnp.where(taken, correction, memory[5:8]))
+
+
 __all__ = [
     "BEAM_STRIDE", "MEMORY", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP", "candidate_scores",
-    "close_loop", "closure_search", "coarse_window", "conflict_fraction", "window_half",
+    "close_loop", "closure_search", "coarse_window", "conflict_fraction", "record_applied", "window_half",
 ]

@@ -125,7 +125,7 @@ from jax import Array
 from jaxslam.core import se2
 from jaxslam.datasets.geometry import se2_compose
 from jaxslam.driver import best_particle
-from jaxslam.grid.closure import close_loop
+from jaxslam.grid.closure import close_loop, record_applied
 from jaxslam.grid.filter import empty_info, match_geometry, particle_reader, score_model
 from jaxslam.grid.matching import hill_climb_match
 from jaxslam.grid.score import make_score_fn
@@ -135,8 +135,8 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Od
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
     conflict (), memory (MEMORY,))`` (``closed``: the loop-closure search's pose replaced
-    the local match, or a closure was undone; ``conflict``: the share of its beams ending in known free space;
-    ``memory``: the state's ``closure_memory`` after this scan; see
+    the local match, or a closure was undone; ``conflict``: the share of its beams
+    ending in known free space; ``memory``: the state's ``closure_memory`` after this scan; see
     :mod:`jaxslam.grid.closure`)."""
     dtype = state.poses.dtype
     best = best_particle(state)
@@ -187,8 +187,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     if config.closure:  # an undone closure is taken back whatever the match says
         pose = jnp.where(undone, matched, pose)
         accepted = accepted | undone
-        # the correction a closure applied, as constrained above: what an undo takes back
-        memory = memory.at[5:8].set(jnp.where(taken, se2.compose(pose, se2.inverse(local)), memory[5:8]))
+        memory = record_applied(memory, taken, se2.compose(pose, se2.inverse(local)))
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
     return motion, score, accepted, closed, conflict, memory
 
