@@ -57,9 +57,10 @@ class GridSlamConfig:
             suite's measurement is in :mod:`jaxslam.grid.gmapping`).
         closure: where the tracking's match scores under ``closure_trigger``, search
             wide for a better one (:mod:`jaxslam.grid.closure`: a place mapped long
-            ago, met again metres and degrees off). Off by default: it closes MIT
-            Killian's loops, but it also took false closures on Intel (measured in
-            the module docstring); ``jaxslam run --loop-closure`` turns it on.
+            ago, met again metres and degrees off), with its watch and undo. Off here;
+            :func:`jaxslam.grid.experiment.make_config` turns it on for SRUPF-GM and
+            leaves it off for the GMapping-style filter (measured in the module
+            docstring); ``jaxslam run --loop-closure`` / ``--no-loop-closure`` choose.
         closure_radius: the search's reach in position (m, each axis).
         closure_turn: the search's reach in heading (rad, either way).
     """
@@ -146,7 +147,9 @@ class GridSlamParams(NamedTuple):
     last closure, whichever is more. A closure taken is watched over the next
     ``closure_watch`` m of odometry: where the share of the tracking's beams ending in
     known free space averages over ``closure_undo`` there, the closure is undone and
-    its correction refused (1: never; see :mod:`jaxslam.grid.closure`).
+    its correction refused (1: never; see :mod:`jaxslam.grid.closure`). Before the
+    watch ends, a closure is undone as soon as that share averages over
+    ``closure_undo_fast`` over at least two scans (1: never).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -190,6 +193,7 @@ class GridSlamParams(NamedTuple):
     closure_jump: Array
     closure_watch: Array
     closure_undo: Array
+    closure_undo_fast: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -299,6 +303,7 @@ def default_params(
         "closure_jump": 0.5,
         "closure_watch": 5.0,
         "closure_undo": 0.11,
+        "closure_undo_fast": 1.0,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,

@@ -107,7 +107,7 @@ def tracked(sim):
     track = jax.jit(_track, static_argnums=4)
     with jax.enable_x64(True):
         state, scans, params, config = state_and_scans(sim)
-    assert not config.closure  # off by default
+    assert config.closure  # SRUPF-GM's default
     # A long way (100 m of odometry) since the last closure: no bound on the jump.
     state = state._replace(closure_memory=state.closure_memory.at[4].set(100.0))
     return track, state, scans, params, dataclasses.replace(config, closure=True)
@@ -221,6 +221,18 @@ def _watched(state, applied, travelled, conflict_sum, conflict_count, before=7.0
     return state._replace(closure_memory=memory)
 
 
+def _closed_off(sim, state):
+    """``(true_step, wrong, applied)``: scan 3's true odometry step from scan 0, the step
+    of a frame a closure moved 1.6 m and 5 deg off, and that closure's world correction
+    (``wrong`` in the world = ``applied`` (+) ``true_step`` in the world)."""
+    true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+    wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+    anchor = np.asarray(state.poses[0])
+    off_w = se2_compose(anchor[None], wrong[None])[0]
+    true_w = se2_compose(anchor[None], true_step[None])[0]
+    return true_step, wrong, se2_compose(off_w[None], se2_between(true_w[None], np.zeros((1, 3))))[0]
+
+
 def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, tracked):
     """Scan 3 tracked in a frame that a closure moved 1.6 m and 5 deg off (the local
     match stays off, beyond the hill climb's reach). After ``closure_watch`` m with a
@@ -232,12 +244,7 @@ def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, 
     undo = params._replace(closure_undo=np.float64(0.11), closure_watch=np.float64(5.0),
                            closure_trigger=np.float64(0.0))
     with jax.enable_x64(True):
-        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
-        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        anchor = np.asarray(state.poses[0])
-        off_w = se2_compose(anchor[None], wrong[None])[0]
-        true_w = se2_compose(anchor[None], true_step[None])[0]
-        applied = se2_compose(off_w[None], se2_between(true_w[None], np.zeros((1, 3))))[0]  # off_w = applied (+) true_w
+        true_step, wrong, applied = _closed_off(sim, state)
         plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3], undo, config)
         high = track(_watched(state, applied, 5.5, 3.0, 10.0), wrong, scans[3], undo, config)
         low = track(_watched(state, applied, 5.5, 0.5, 10.0), wrong, scans[3], undo, config)
@@ -275,3 +282,34 @@ def test_a_closure_with_the_undone_correction_is_refused(sim, tracked):
     assert not bool(same[3]) and float(same[5][8]) == -1.0
     assert bool(other[3])
     np.testing.assert_array_equal(np.asarray(other[0]), np.asarray(closed[0]))
+
+
+def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(sim, tracked):
+    """``closure_undo_fast``: the scan-3 closure of the test above, watched past a fifth
+    of ``closure_watch`` (20 m here, so that scan 3's own odometry, about 2 m, stays
+    short of it) with a mean conflict of at least 0.45 over two scans, is undone
+    before the watch ends and the match lands on the true pose. With only one scan
+    watched (a robot standing still repeats one scan), before a fifth of the watch
+    distance, or with the parameter at 1 (off), nothing changes but the watch state."""
+    track, state, scans, params, config = tracked
+    fast = params._replace(closure_undo=np.float64(0.11), closure_watch=np.float64(20.0),
+                           closure_undo_fast=np.float64(0.4), closure_trigger=np.float64(0.0))
+    with jax.enable_x64(True):
+        true_step, wrong, applied = _closed_off(sim, state)
+        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3], fast, config)
+        # the mean after this scan is at least (0.9 + 0) / 2 = 0.45 whatever this scan's conflict
+        early = track(_watched(state, applied, 4.0, 0.9, 1.0), wrong, scans[3], fast, config)
+        # a sum no single scan can reach (0.9 + this scan's), counted as one scan
+        one_scan = track(_watched(state, applied, 4.0, 0.9, 0.0), wrong, scans[3], fast, config)
+        too_soon = track(_watched(state, applied, 0.0, 0.9, 1.0), wrong, scans[3], fast, config)
+        off = track(_watched(state, applied, 4.0, 0.9, 1.0), wrong, scans[3],
+                    fast._replace(closure_undo_fast=np.float64(1.0)), config)
+        error = se2_between(true_step[None], np.asarray(early[0])[None])[0]
+    step = float(np.hypot(*wrong[:2]))
+    assert 1.0 < step < 4.0
+    assert bool(early[3]) and np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5), error
+    assert float(early[5][8]) == -1.0
+    for kept in (one_scan, too_soon, off):
+        assert not bool(kept[3])
+        np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(plain[0]))
+        assert float(kept[5][8]) == 1.0
