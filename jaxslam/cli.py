@@ -108,11 +108,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--max-range", type=float, default=None, metavar="M",
                      help="CARMEN logs: range limit in m; readings at or beyond it are 'no return' (default: the "
                           "logged limit, lowered to a detected no-return sentinel pile, see summary.json no_return)")
-    run.add_argument("--loop-closure", action="store_true",
+    run.add_argument("--loop-closure", action=argparse.BooleanOptionalAction, default=None,
                      help="laser data: where the tracking's match fails in a mapped place, search up to 4 m and "
                           "8 deg around it and take a clearly better pose (closes large loops such as MIT "
                           "Killian's; a closure whose beams keep ending in known free space over the next 5 m "
-                          "is undone; off by default: it can also take false closures)")
+                          "is undone). Default: on for srupf-gm, off for the GMapping-style filter")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",

@@ -169,7 +169,7 @@ def _log_cache_folder() -> str | None:
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
-             checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False, loop_closure=False):
+             checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False, loop_closure=None):
     """Run a grid filter on a laser log and score it: ``(summary, arrays, write_files)``,
     the figures' data (:func:`jaxslam.outputs.grid_arrays`) and a function that writes
     the run's files. ``prefetch``: import the plotting module on a thread once the log
@@ -190,7 +190,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         checkpoint, chunk = live, live.every
     result = grid_experiment.run_grid_slam(
         log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
-        config={"closure": True} if loop_closure else None,
+        config=None if loop_closure is None else {"closure": bool(loop_closure)},
         progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
         **({"checkpoint": checkpoint} if checkpoint is not None else {}),
         **{f"{k}_update": v for k, v in (keyframes or {}).items()},
@@ -205,7 +205,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
                                             "closure_scans")},
         "wall_s": result.wall_s, "compile_s": result.compile_s,
         "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
-        "resamplings": result.resamplings, "dtype": np.dtype(dtype).name, "loop_closure": bool(loop_closure),
+        "resamplings": result.resamplings, "dtype": np.dtype(dtype).name, "loop_closure": bool(result.config.closure),
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}), "load_s": load_s, "log_cache": log_cache,
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
@@ -289,7 +289,7 @@ def run(
     rerun_spawn: bool = False,
     max_range: float | None = None,
     threads: int | str | None = None,
-    loop_closure: bool = False,
+    loop_closure: bool | None = None,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -308,8 +308,9 @@ def run(
     of the "no return" sentinel detection (:func:`jaxslam.datasets.carmen.detect_no_return`).
     ``float64`` runs the filter in double precision: JAX's 64-bit mode is switched on
     for this run only (``jax.enable_x64``), the default float32 path never touches it.
-    ``loop_closure`` (laser data) turns on the tracking's loop-closure search
-    (:mod:`jaxslam.grid.closure`; off by default).
+    ``loop_closure`` (laser data) turns the tracking's loop-closure search
+    (:mod:`jaxslam.grid.closure`) on or off; None keeps the algorithm's default (on for
+    SRUPF-GM, off for the GMapping-style filter, :func:`jaxslam.grid.experiment.make_config`).
     ``threads`` sizes XLA's CPU thread pool (a count or ``"all"``; default
     ``$JAXSLAM_THREADS``, else :func:`jaxslam.compiler.auto_threads`):
     :func:`jaxslam.compiler.set_threads`, which can act only before the process's
@@ -362,10 +363,10 @@ def run(
         run_args["max_range"] = float(max_range)
     if threads is not None:
         run_args["threads"] = threads
-    if loop_closure:
+    if loop_closure is not None:
         if kind != "laser":
-            raise RunError("--loop-closure applies to laser data only")
-        run_args["loop_closure"] = True
+            raise RunError("--loop-closure / --no-loop-closure apply to laser data only")
+        run_args["loop_closure"] = bool(loop_closure)
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint
@@ -390,8 +391,8 @@ def run(
     extra["prefetch"] = bool(plots)
     if max_range is not None:
         extra["max_range"] = float(max_range)
-    if loop_closure:
-        extra["loop_closure"] = True
+    if loop_closure is not None:
+        extra["loop_closure"] = bool(loop_closure)
     if bag:
         extra["bag"] = bag
     viz = _open_viz(rerun, rerun_spawn, dataset_name)

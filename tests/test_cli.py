@@ -229,16 +229,23 @@ def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypa
     assert json.loads((interrupted / "run.json").read_text())["keyframes"] == {"linear": 0.4}
 
 
-def test_loop_closure_flag_is_recorded_and_for_laser_data_only(capsys, tmp_path):
+def test_loop_closure_is_srupf_gms_default_can_be_turned_off_and_is_for_laser_data_only(capsys, tmp_path):
     out = tmp_path / "closure"
     assert run_cli("run", "--out", str(out), "--algorithm", "srupf-gm", "--particles", "2", "--max-steps", "6",
-                   "--no-progress", "--no-plots", "--loop-closure") == 0
+                   "--no-progress", "--no-plots") == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["loop_closure"] is True and summary["closures"] >= 0
     assert isinstance(summary["closure_scans"], list)
-    assert json.loads((out / "run.json").read_text())["loop_closure"] is True
+    assert "loop_closure" not in json.loads((out / "run.json").read_text())  # the algorithm's default
+    off = tmp_path / "off"
+    assert run_cli("run", "--out", str(off), "--algorithm", "srupf-gm", "--particles", "2", "--max-steps", "6",
+                   "--no-progress", "--no-plots", "--no-loop-closure") == 0
+    assert json.loads((off / "summary.json").read_text())["loop_closure"] is False
+    assert json.loads((off / "run.json").read_text())["loop_closure"] is False
     capsys.readouterr()
     assert run_cli("run", "--out", str(tmp_path / "o"), "--algorithm", "erb-upf", "--loop-closure") == 2
+    assert "laser data only" in capsys.readouterr().err
+    assert run_cli("run", "--out", str(tmp_path / "o2"), "--algorithm", "erb-upf", "--no-loop-closure") == 2
     assert "laser data only" in capsys.readouterr().err
 
 

@@ -203,6 +203,10 @@ def make_config(
         # filter keeps GMapping's own correction unless asked (measured over the
         # robustness suite: see jaxslam.grid.gmapping).
         "constrain_matches": algorithm != "gmapping",
+        # The loop-closure search with its watch and undo is SRUPF-GM's default; the
+        # GMapping-style filter, a baseline for GMapping, has none unless asked
+        # (measured over the robustness suite: see jaxslam.grid.closure).
+        "closure": algorithm != "gmapping",
     }
     base.update(overrides)
     return GridSlamConfig(particles, layout, num_beams, max_points, **base)

@@ -255,6 +255,9 @@ def test_gmapping_correction_moves_only_along_constrained_directions(sim):
     layout = config.layout
     assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).constrain_matches
     assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).constrain_matches
+    # The loop-closure search likewise: SRUPF-GM's default, not the GMapping-style filter's.
+    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).closure
+    assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).closure
 
 
 def test_keyframe_control_carries_the_tracked_noise_scale(sim):
