@@ -26,8 +26,11 @@ KEYFRAMES = dict(linear_update=0.5, angular_update=0.3, resample_threshold=1.0, 
 @pytest.fixture(scope="module")
 def setup():
     log = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.3, num_beams=91, seed=2)
+    # The loop-closure search off: a 36-scan window closes no loop, and compiled into the
+    # gradient programs it costs these tests about 40 s. (test_calibration_takes_the_runs_
+    # range_rule calibrates with the default configuration, search included.)
     reference = run_grid_slam(G.window_log(log, SCANS), "srupf-gm", particles=PARTICLES, seed=0, progress=False,
-                              params=KEYFRAMES, config={"match_iterations": 6})
+                              params=KEYFRAMES, config={"match_iterations": 6, "closure": False})
     params = default_params(log.angles, log.laser_offset, **KEYFRAMES)
     inputs = jax.tree_util.tree_map(jnp.asarray, G.window_inputs(log, SCANS))
     return log, reference.config, params, inputs
