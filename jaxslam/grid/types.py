@@ -149,7 +149,8 @@ class GridSlamParams(NamedTuple):
     known free space averages over ``closure_undo`` there, the closure is undone and
     its correction refused (1: never; see :mod:`jaxslam.grid.closure`). Before the
     watch ends, a closure is undone as soon as that share averages over
-    ``closure_undo_fast`` over at least two scans (1: never).
+    ``closure_undo_fast`` over at least two scans and a fifth of the watch (1: never,
+    the default; measured in :mod:`jaxslam.grid.closure`).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
