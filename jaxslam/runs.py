@@ -310,7 +310,8 @@ def run(
     for this run only (``jax.enable_x64``), the default float32 path never touches it.
     ``loop_closure`` (laser data) turns the tracking's loop-closure search
     (:mod:`jaxslam.grid.closure`) on or off; None keeps the algorithm's default (on for
-    SRUPF-GM, off for the GMapping-style filter, :func:`jaxslam.grid.experiment.make_config`).
+    SRUPF-GM, off for the GMapping-style filter, :func:`jaxslam.grid.experiment.closure_default`).
+    ``run.json`` and a checkpoint's fingerprint record what ran, default or not.
     ``threads`` sizes XLA's CPU thread pool (a count or ``"all"``; default
     ``$JAXSLAM_THREADS``, else :func:`jaxslam.compiler.auto_threads`):
     :func:`jaxslam.compiler.set_threads`, which can act only before the process's
@@ -363,10 +364,16 @@ def run(
         run_args["max_range"] = float(max_range)
     if threads is not None:
         run_args["threads"] = threads
-    if loop_closure is not None:
-        if kind != "laser":
-            raise RunError("--loop-closure / --no-loop-closure apply to laser data only")
-        run_args["loop_closure"] = bool(loop_closure)
+    if loop_closure is not None and kind != "laser":
+        raise RunError("--loop-closure / --no-loop-closure apply to laser data only")
+    if kind == "laser":
+        # What runs, recorded even when it is the algorithm's default: a checkpoint's
+        # fingerprint then names it, and a default that changes between versions
+        # cannot silently switch the search on or off in a resumed run.
+        from jaxslam.grid.experiment import closure_default
+
+        loop_closure = closure_default(algorithm) if loop_closure is None else bool(loop_closure)
+        run_args["loop_closure"] = loop_closure
     checkpoint = None
     if checkpoint_every is not None or resume:
         from jaxslam.checkpoint import Checkpoint

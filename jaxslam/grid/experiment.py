@@ -189,6 +189,14 @@ def best_trajectory(info_poses, info_ancestors, final_index: int) -> np.ndarray:
     return out
 
 
+def closure_default(algorithm: str) -> bool:
+    """Whether ``algorithm`` runs the loop-closure search by default: SRUPF-GM does (with
+    its watch and undo); the GMapping-style filter, a baseline for GMapping, which has
+    no such search, does not unless asked (measured over the robustness suite: see
+    :mod:`jaxslam.grid.closure`)."""
+    return algorithm != "gmapping"
+
+
 def make_config(
     algorithm: str, particles: int, layout: PagedLayout, num_beams: int, max_points: int, **overrides
 ) -> GridSlamConfig:
@@ -203,10 +211,7 @@ def make_config(
         # filter keeps GMapping's own correction unless asked (measured over the
         # robustness suite: see jaxslam.grid.gmapping).
         "constrain_matches": algorithm != "gmapping",
-        # The loop-closure search with its watch and undo is SRUPF-GM's default; the
-        # GMapping-style filter, a baseline for GMapping, has none unless asked
-        # (measured over the robustness suite: see jaxslam.grid.closure).
-        "closure": algorithm != "gmapping",
+        "closure": closure_default(algorithm),
     }
     base.update(overrides)
     return GridSlamConfig(particles, layout, num_beams, max_points, **base)
@@ -374,6 +379,7 @@ __all__ = [
     "DEFAULT_KEYFRAMES",
     "GridSlamResult",
     "best_trajectory",
+    "closure_default",
     "keyframe_rule",
     "make_config",
     "map_layout",

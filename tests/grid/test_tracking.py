@@ -11,7 +11,7 @@ import pytest
 from jaxslam.datasets.geometry import se2_between, se2_compose
 from jaxslam.datasets.keyframes import select_keyframes
 from jaxslam.grid import srupf
-from jaxslam.grid.experiment import make_config, run_grid_slam
+from jaxslam.grid.experiment import closure_default, make_config, run_grid_slam
 from jaxslam.grid.tracking import constrained_shift, is_keyframe, scan_trajectory
 from jaxslam.grid.tracking import track as _track
 from jaxslam.grid.types import Scan, default_params
@@ -256,8 +256,8 @@ def test_gmapping_correction_moves_only_along_constrained_directions(sim):
     assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).constrain_matches
     assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).constrain_matches
     # The loop-closure search likewise: SRUPF-GM's default, not the GMapping-style filter's.
-    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).closure
-    assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).closure
+    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).closure and closure_default("srupf-gm")
+    assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).closure and not closure_default("gmapping")
 
 
 def test_keyframe_control_carries_the_tracked_noise_scale(sim):
