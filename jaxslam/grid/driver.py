@@ -63,6 +63,7 @@ def summarise(info) -> dict[str, Any]:
         "track_accepted": info.track_accepted,
         "track_closed": info.track_closed,
         "track_conflict": info.track_conflict,
+        "track_undo": info.track_undo,
     }
 
 

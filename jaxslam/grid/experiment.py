@@ -38,6 +38,7 @@ from jaxslam.grid.types import (
     default_keyframes,
     default_params,
 )
+from jaxslam.grid.closure import take_back
 from jaxslam.grid.range_rule import apply_range_rule
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
@@ -46,7 +47,7 @@ from jaxslam.metrics.trajectory_io import se2_between
 ALGORITHMS = algorithms("laser")
 # Per-scan outputs of the run kept for every scan (the rest is kept per keyframe).
 PER_SCAN_KEYS = ("poses", "ancestors", "keyframe", "motion", "track_score", "track_accepted", "track_closed",
-                 "track_conflict")
+                 "track_conflict", "track_undo")
 
 def keyframe_rule(linear=None, angular=None, temporal=None, algorithm: str = "srupf-gm") -> tuple[float, float, float]:
     """``(linear, angular, temporal)`` thresholds: the given ones, else the filter's
@@ -133,10 +134,14 @@ class GridSlamResult:
         }
 
     def closure_summary(self) -> dict[str, Any]:
-        """How often the loop-closure search replaced the tracking's match
-        (:mod:`jaxslam.grid.closure`) and at which scans (the first 100)."""
+        """How often the loop-closure search replaced the tracking's match or undid a
+        closure (:mod:`jaxslam.grid.closure`) and at which scans (the first 100 of each)."""
         closed = np.flatnonzero(np.asarray(self.info.get("track_closed", np.zeros(0, bool)), bool)) + 1
-        return {"closures": int(closed.shape[0]), "closure_scans": closed[:100].tolist()}
+        undo = np.asarray(self.info.get("track_undo", np.zeros((0, 4))), np.float64).reshape(-1, 4)
+        undone = np.flatnonzero(undo[:, 0] > 0) + 1
+        return {"closures": int(closed.shape[0]), "closure_scans": closed[:100].tolist(),
+                "closures_undone": int(undone.shape[0]), "undo_scans": undone[:100].tolist(),
+                "undone_scans_moved": int(np.sum(undo[:, 0]))}
 
 
 def _dataset_name(log_or_name) -> str:
@@ -341,8 +346,8 @@ def run_grid_slam(
     flags = np.asarray(ys["keyframe"], bool)
     kf_rows = np.flatnonzero(flags)
     kf_poses = best_trajectory(np.asarray(ys["poses"])[kf_rows], np.asarray(ys["ancestors"])[kf_rows], best)
-    keyframes, trajectory = scan_trajectory(odom[0], flags, kf_poses, ys["motion"])
-    kf_poses = np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0)
+    keyframes, trajectory = scan_trajectory(odom[0], flags, kf_poses, ys["motion"], ys["track_undo"])
+    kf_poses = take_back(np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0), keyframes, ys["track_undo"])
     cells, origin = stitch(state.maps.pool, state.maps.tables[best], cfg.layout)
     grid = cells.astype(np.float32) * unit
     info = {k: np.asarray(v)[kf_rows] for k, v in ys.items() if k not in PER_SCAN_KEYS}

@@ -210,6 +210,7 @@ def finish_step(
         track_accepted=jnp.asarray(False),
         track_closed=jnp.asarray(False),
         track_conflict=jnp.zeros((), log_weights.dtype),
+        track_undo=jnp.zeros((4,), log_weights.dtype),
     )
     return new_state, info
 
@@ -236,6 +237,7 @@ def empty_info(state: GridSlamState, config: GridSlamConfig) -> GridSlamInfo:
         track_accepted=jnp.asarray(False),
         track_closed=jnp.asarray(False),
         track_conflict=zero,
+        track_undo=jnp.zeros((4,), dtype),
     )
 
 

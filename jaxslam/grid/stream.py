@@ -156,9 +156,10 @@ class StreamingGridSlam:
         self._step_ancestors: list[np.ndarray] = []
         self.info: dict[str, list] = {"ess": [], "resampled": [], "mean_score": [], "best_score": [],
                                       "dropped_points": [], "pd_ok_fraction": []}
-        # Per processed scan after the first: keyframe flag and tracked motion.
+        # Per processed scan after the first: keyframe flag, tracked motion, closure undone.
         self._flags: list[bool] = []
         self._motions: list[np.ndarray] = []
+        self._undos: list[np.ndarray] = []
         self.latency_s: list[float] = []  # wall time of each keyframe's add_scan
 
     # ------------------------------------------------------------------ input
@@ -300,6 +301,7 @@ class StreamingGridSlam:
         keyframe = bool(ys["keyframe"])
         self._flags.append(keyframe)
         self._motions.append(np.asarray(ys["motion"], np.float64))
+        self._undos.append(np.asarray(ys["track_undo"], np.float64))
         if keyframe:
             self._step_poses.append(ys["poses"])
             self._step_ancestors.append(ys["ancestors"])
@@ -325,8 +327,9 @@ class StreamingGridSlam:
         """(S, 3) the filter's pose of every scan so far: its keyframe's corrected pose
         and the tracked motion since (as the batch run)."""
         motions = np.stack(self._motions) if self._motions else np.zeros((0, 3))
+        undos = np.stack(self._undos) if self._undos else np.zeros((0, 4))
         return scan_trajectory(self.odom_poses[0], np.asarray(self._flags, bool), self.keyframe_poses()[1:],
-                               motions)[1]
+                               motions, undos)[1]
 
     def pose(self) -> np.ndarray:
         """(3,) the best estimate of the latest scan's robot pose."""

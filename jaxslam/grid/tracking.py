@@ -125,7 +125,7 @@ from jax import Array
 from jaxslam.core import se2
 from jaxslam.datasets.geometry import se2_compose
 from jaxslam.driver import best_particle
-from jaxslam.grid.closure import close_loop, record_applied
+from jaxslam.grid.closure import close_loop, record_applied, take_back
 from jaxslam.grid.filter import empty_info, match_geometry, particle_reader, score_model
 from jaxslam.grid.matching import hill_climb_match
 from jaxslam.grid.score import make_score_fn
@@ -134,17 +134,17 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Od
 
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
-    conflict (), memory (MEMORY,))`` (``closed``: the loop-closure search's pose replaced
-    the local match, or a closure was undone; ``conflict``: the share of its beams
-    ending in known free space; ``memory``: the state's ``closure_memory`` after this scan; see
-    :mod:`jaxslam.grid.closure`)."""
+    conflict (), memory (MEMORY,), undo (4,))`` (``closed``: the loop-closure search's pose
+    replaced the local match, or a closure was undone; ``conflict``: the share of its beams
+    ending in known free space; ``memory``: the state's ``closure_memory`` after this scan;
+    ``undo``: what an undo took back, zeros otherwise; see :mod:`jaxslam.grid.closure`)."""
     dtype = state.poses.dtype
     best = best_particle(state)
     anchor = state.poses[best]
     predicted = se2.compose(state.motion, increment.astype(dtype))
     if not config.tracking:
         return (predicted, jnp.zeros((), dtype), jnp.asarray(False), jnp.asarray(False), jnp.zeros((), dtype),
-                state.closure_memory)
+                state.closure_memory, jnp.zeros((4,), dtype))
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
@@ -174,12 +174,14 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     matched, score = jax.lax.fori_loop(0, 2, attempt, (guess, jnp.full((), -jnp.inf, dtype)))
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
     closed, conflict, memory = jnp.asarray(False), jnp.zeros((), dtype), state.closure_memory
+    undo = jnp.zeros((4,), dtype)
     if config.closure:
         memory = memory.at[4].add(jnp.hypot(increment[0], increment[1]).astype(dtype))
         local = matched
-        matched, score, closed, undone, conflict, memory = close_loop(
+        matched, score, closed, undo, conflict, memory = close_loop(
             score_fn, read, config.layout, local_points, mask, params.laser_offset, matched, score, count, memory,
             params, config)
+        undone = undo[0] > 0
         taken, closed = closed, closed | undone
     score = score / count
     pose = constrained_pose(score_fn, matched, guess, score * count, count, params)
@@ -189,7 +191,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
         accepted = accepted | undone
         memory = record_applied(memory, taken, se2.compose(pose, se2.inverse(local)))
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
-    return motion, score, accepted, closed, conflict, memory
+    return motion, score, accepted, closed, conflict, memory, undo
 
 
 def constrained_pose(score_fn, matched: Array, start: Array, score: Array, count: Array,
@@ -283,8 +285,8 @@ def per_scan(keyframe_step):
              config: GridSlamConfig):
         control = as_odometry(control)
         dtype = state.poses.dtype
-        motion, score, accepted, closed, conflict, memory = track(state, control.increment, observation, params,
-                                                                  config)
+        motion, score, accepted, closed, conflict, memory, undo = track(state, control.increment, observation,
+                                                                        params, config)
         delta = se2.relative(state.motion, motion)
         since = state.since_keyframe + jnp.stack([
             jnp.hypot(delta[0], delta[1]), jnp.abs(delta[2]), jnp.asarray(0.0 if control.dt is None else control.dt, dtype),
@@ -301,12 +303,13 @@ def per_scan(keyframe_step):
                 closure_memory=jnp.where(applied, memory, state.closure_memory),
             )
             return new, info._replace(track_score=score, track_accepted=accepted, track_closed=closed,
-                                      track_conflict=conflict)
+                                      track_conflict=conflict, track_undo=undo)
 
         def between(key, state):
             state = state._replace(motion=motion, since_keyframe=since, closure_memory=memory)
             return state, empty_info(state, config)._replace(track_score=score, track_accepted=accepted,
-                                                             track_closed=closed, track_conflict=conflict)
+                                                             track_closed=closed, track_conflict=conflict,
+                                                             track_undo=undo)
 
         return jax.lax.cond(is_keyframe(since, params), keyframe, between, key, state)
 
@@ -318,7 +321,7 @@ def per_scan(keyframe_step):
 
 
 def scan_trajectory(first_pose: np.ndarray, keyframe_flags: np.ndarray, keyframe_poses: np.ndarray,
-                    motions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                    motions: np.ndarray, undo: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Host: a pose for every scan from a per-scan run.
 
     Args:
@@ -326,6 +329,8 @@ def scan_trajectory(first_pose: np.ndarray, keyframe_flags: np.ndarray, keyframe
         keyframe_flags: ``(S-1,)`` ``Info.keyframe`` of scans ``1..S-1``.
         keyframe_poses: ``(K-1, 3)`` the chosen lineage's poses at those keyframes.
         motions: ``(S-1, 3)`` ``Info.motion`` (tracked motion since the last keyframe).
+        undo: ``(S-1, 4)`` ``Info.track_undo``, or None: the closures undone are taken
+            back on the scans they had moved (:func:`jaxslam.grid.closure.take_back`).
 
     Returns:
         ``(keyframes (K,), trajectory (S, 3))``: scan indices of the keyframes (0
@@ -337,7 +342,10 @@ def scan_trajectory(first_pose: np.ndarray, keyframe_flags: np.ndarray, keyframe
     # Scan s (1..S-1) belongs to the last keyframe at or before it.
     slot = np.cumsum(np.concatenate([[0], flags.astype(np.int64)]))
     motion = np.concatenate([np.zeros((1, 3)), np.asarray(motions, np.float64)], 0)
-    return keyframes, se2_compose(anchors[slot], motion)
+    trajectory = se2_compose(anchors[slot], motion)
+    if undo is not None:
+        trajectory = take_back(trajectory, np.arange(trajectory.shape[0]), undo)
+    return keyframes, trajectory
 
 
 __all__ = [

@@ -375,6 +375,7 @@ class GridSlamInfo(NamedTuple):
     track_accepted: Array  # () bool: the tracking match replaced the odometry
     track_closed: Array  # () bool: the loop-closure search's pose replaced the local match, or a closure was undone
     track_conflict: Array  # () share of the tracking match's beams ending in known free space
+    track_undo: Array  # (4,) a closure undone here: scans since it was taken, its correction (x, y, θ); else 0
 
 
 class Odometry(NamedTuple):

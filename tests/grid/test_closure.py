@@ -10,9 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxslam.datasets.geometry import se2_between, se2_compose
+from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.grid.closure import (
-    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
+    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, take_back, window_half,
 )
 from jaxslam.grid.map import GridSpec, dense_reader
 from jaxslam.grid.tracking import track as _track
@@ -177,12 +177,12 @@ def test_a_candidate_is_held_until_confirmed(sim, tracked):
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        motion, _, _, closed, _, held = track(state, wrong, scans[3], confirm, config)
+        motion, _, _, closed, _, held, _ = track(state, wrong, scans[3], confirm, config)
         plain = track(state, wrong, scans[3], confirm._replace(closure_trigger=np.float64(0.0)), config)
         assert not bool(closed) and float(held[3]) == 1.0
         np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
         # The next scan (here the same one again) follows and closes.
-        motion2, _, _, closed2, _, held2 = track(state._replace(closure_memory=held), wrong, scans[3], confirm, config)
+        motion2, _, _, closed2, _, held2, _ = track(state._replace(closure_memory=held), wrong, scans[3], confirm, config)
         error2 = se2_between(true_step[None], np.asarray(motion2)[None])[0]
         assert bool(closed2) and not np.any(np.asarray(held2)[:5]), held2
         assert np.hypot(*error2[:2]) < 0.05 and abs(error2[2]) < math.radians(0.5), error2
@@ -256,10 +256,14 @@ def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, 
     memory = np.asarray(high[5])
     assert memory[8] == -1.0 and memory[4] == pytest.approx(5.5 + float(np.hypot(*wrong[:2])) + 7.0)
     np.testing.assert_allclose(memory[5:8], applied, atol=1e-12)
+    # what the undo took back, for the path: the 10 watched scans and this one, and A
+    assert float(high[6][0]) == 11.0
+    np.testing.assert_allclose(np.asarray(high[6][1:]), applied, atol=1e-12)
     for kept, watching in ((low, 0.0), (early, 1.0)):
         assert not bool(kept[3])
         np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(plain[0]))
         assert float(kept[5][8]) == watching
+        np.testing.assert_array_equal(np.asarray(kept[6]), np.zeros(4))
     assert float(early[5][10]) == 11.0 and float(early[5][9]) == pytest.approx(3.0 + float(early[4]))
 
 
@@ -313,3 +317,31 @@ def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(s
         assert not bool(kept[3])
         np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(plain[0]))
         assert float(kept[5][8]) == 1.0
+
+
+def test_the_path_takes_back_an_undone_closure_on_the_scans_it_moved():
+    """A closure at scan 20 moved the tracking's frame by ``A`` (x = A (+) x_local); the
+    undo at scan 27 (7 scans since the closure) returned to the frame before it. The
+    reported poses of scans 20..26 are ``A^-1 (+) x``, which puts them back on the
+    path of the frame kept; scans 0..19 and 27 on are left as they are, and a row of
+    zeros takes nothing back. Keyframe poses (given by scan index) are treated alike."""
+    rng = np.random.default_rng(3)
+    steps = np.column_stack([rng.uniform(0.05, 0.2, 40), rng.normal(0, 0.02, 40), rng.normal(0, 0.05, 40)])
+    steps[0] = 0.0
+    true = np.zeros((40, 3))
+    for s in range(1, 40):
+        true[s] = se2_compose(true[s - 1][None], steps[s][None])[0]
+    correction = np.array([2.0, -1.5, math.radians(12.0)])
+    reported = true.copy()
+    reported[20:27] = se2_compose(correction[None], true[20:27])
+    undo = np.zeros((39, 4))
+    undo[27 - 1] = [7.0, *correction]
+    got = take_back(reported, np.arange(40), undo)
+    np.testing.assert_allclose(got, true, atol=1e-12)
+    np.testing.assert_array_equal(got[:20], reported[:20])
+    np.testing.assert_array_equal(got[27:], reported[27:])
+    np.testing.assert_array_equal(take_back(reported, np.arange(40), np.zeros((39, 4))), reported)
+    keyframes = np.array([0, 12, 19, 20, 24, 27, 33])
+    np.testing.assert_allclose(take_back(reported[keyframes], keyframes, undo), true[keyframes], atol=1e-12)
+    # the inverse is the world-frame one (left), not a relative one
+    assert not np.allclose(se2_compose(true[20:27], se2_inverse(correction)[None]), true[20:27])
