@@ -17,7 +17,13 @@ loop-closure search replaced the tracking's match (:mod:`jaxslam.grid.closure`):
   from a scan more than 300 scans before ``c`` to one of scans ``c .. c+60`` judge it
   by their translational errors (:func:`jaxslam.metrics.relations.relation_errors`,
   the metric's own): ``R`` (right) if their median ``relation_error_m`` is under 0.5
-  m, ``W`` (wrong) otherwise, ``?`` without such relations.
+  m, ``W`` (wrong) otherwise, ``?`` without such relations;
+* ``undone_at``: the scan whose watch undid the closure, if one did.
+
+Runs saved since session 43 also hold ``info_track_undo``: their undos are not listed
+as closures, and every measure here is taken on the path as it was tracked (the
+reported path takes undone closures back, :func:`jaxslam.grid.closure.take_back`, and
+would hide them).
 
     python benchmarks/closure_diagnostics.py --log mit-killian --runs '/tmp/grid_robustness/s39_kil_drift*/*_drift_s*.npz' \\
         --name closure_diagnostics_killian
@@ -56,6 +62,17 @@ def closures(path: str, relations=None) -> list[dict]:
     path_poses, stamps = run["trajectory"], run["scan_times"]
     score, conflict = run["info_track_score"], run["info_track_conflict"]
     closed = np.flatnonzero(run["info_track_closed"]) + 1  # info[i] is scan i + 1
+    undo_of: dict[int, int] = {}
+    if "info_track_undo" in run.files:  # since session 43: undos apart, and the path as tracked
+        from jaxslam.datasets.geometry import se2_inverse
+        from jaxslam.grid.closure import take_back
+
+        undo = np.asarray(run["info_track_undo"], np.float64).reshape(-1, 4)
+        undone_at = np.flatnonzero(undo[:, 0] > 0) + 1
+        undo_of = {int(b - round(undo[b - 1, 0])): int(b) for b in undone_at}
+        closed = np.setdiff1d(closed, undone_at)
+        put_back = np.concatenate([undo[:, :1], se2_inverse(undo[:, 1:])], 1)
+        path_poses = take_back(path_poses, np.arange(path_poses.shape[0]), put_back)
     length = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path_poses[:, :2], axis=0).T))])
     if relations is not None:
         errors = relation_errors(relations, stamps, path_poses)
@@ -77,7 +94,7 @@ def closures(path: str, relations=None) -> list[dict]:
             "jump_per_m": float(np.hypot(*step[:2]) / max(travelled, 1e-9)),
             "score": float(score[c - 1]), "score_before": float(score[max(c - 11, 0):max(c - 4, 1)].mean()),
             "conflict_before": float(conflict[c - 2]), "conflict_after": float(conflict[c:c + 3].max(initial=0.0)),
-            "relation_error_m": error_m, "verdict": verdict,
+            "relation_error_m": error_m, "verdict": verdict, "undone_at": undo_of.get(int(c)),
         })
         last = c
     return rows
@@ -123,7 +140,7 @@ def main(argv=None) -> None:
         raise SystemExit(f"no runs match {args.runs}")
     rows = [row for p in paths for row in closures(p, relations)]
     print_table(rows, ["run", "scan", "jump_m", "turn_deg", "travelled_m", "jump_per_m", "score_before", "score",
-                       "conflict_before", "conflict_after", "relation_error_m", "verdict"])
+                       "conflict_before", "conflict_after", "relation_error_m", "verdict", "undone_at"])
     summary = {}
     for verdict in ("R", "W", "?"):
         after = np.array([r["conflict_after"] for r in rows if r["verdict"] == verdict])

@@ -50,3 +50,35 @@ def test_a_right_and_a_wrong_closure(tmp_path):
     assert right["conflict_after"] == pytest.approx(0.3) and right["score"] == pytest.approx(0.45)
     unjudged = closure_diagnostics.closures(str(run), None)
     assert [r["verdict"] for r in unjudged] == ["?", "?"]
+
+
+def test_an_undone_closure_is_judged_on_the_path_as_tracked(tmp_path):
+    """The wrong closure at scan 900 of the test above, undone at scan 930: the run
+    reports scans 900..929 taken back (on the truth) and records the undo. The
+    diagnostics list the closures at 700 and 900 (not the undo), judge 900 wrong on
+    the path as tracked (3 m) and say where it was undone."""
+    from jaxslam.datasets.geometry import se2_compose, se2_inverse
+
+    n = 1000
+    truth = np.stack([0.1 * np.arange(n), np.zeros(n), np.zeros(n)], -1)
+    tracked = truth.copy()
+    tracked[400:700, 1] += 2.0
+    tracked[900:930, 1] += 3.0
+    correction = np.array([0.0, 3.0, 0.0])
+    reported = tracked.copy()
+    reported[900:930] = se2_compose(se2_inverse(correction)[None], tracked[900:930])
+    closed = np.zeros(n - 1, bool)
+    closed[[699, 899, 929]] = True  # an undo sets track_closed too
+    undo = np.zeros((n - 1, 4))
+    undo[929] = [30.0, *correction]
+    run = tmp_path / "run.npz"
+    np.savez(run, trajectory=reported, scan_times=np.arange(n, dtype=float), info_track_closed=closed,
+             info_track_conflict=np.zeros(n - 1), info_track_score=np.full(n - 1, 0.5), info_track_undo=undo)
+    pairs = [(100, 720), (150, 910)]
+    relations = Relations(None, np.array([float(a) for a, _ in pairs]), np.array([float(b) for _, b in pairs]),
+                          np.array([truth[b] - truth[a] for a, b in pairs]), np.arange(1, 3))
+    rows = closure_diagnostics.closures(str(run), relations)
+    assert [r["scan"] for r in rows] == [700, 900]
+    assert [r["undone_at"] for r in rows] == [None, 930]
+    assert rows[1]["verdict"] == "W" and rows[1]["relation_error_m"] == pytest.approx(3.0)
+    assert rows[1]["jump_m"] == pytest.approx(np.hypot(0.1, 3.0))
