@@ -18,7 +18,10 @@ loop-closure search replaced the tracking's match (:mod:`jaxslam.grid.closure`):
   by their translational errors (:func:`jaxslam.metrics.relations.relation_errors`,
   the metric's own): ``R`` (right) if their median ``relation_error_m`` is under 0.5
   m, ``W`` (wrong) otherwise, ``?`` without such relations;
-* ``undone_at``: the scan whose watch undid the closure, if one did.
+* ``undone_at``: the scan whose watch undid the closure, if one did, and
+  ``watch_conflict``: the share of beams in known free space averaged over the scans
+  that watched it (up to the undo, else over 5 m of path), which ``closure_undo``
+  judges.
 
 Runs saved since session 43 also hold ``info_track_undo``: their undos are not listed
 as closures, and every measure here is taken on the path as it was tracked (the
@@ -49,6 +52,8 @@ BEFORE = 300
 """A relation judges a closure when its earlier scan lies this many scans before it."""
 AFTER = 60
 """... and its later scan within this many scans after it."""
+WATCH_M = 5.0
+"""Path length over which ``watch_conflict`` averages (``closure_watch``'s default)."""
 RIGHT_M = 0.5
 """A right closure's judging relations have a median translational error under this (m)."""
 
@@ -95,9 +100,19 @@ def closures(path: str, relations=None) -> list[dict]:
             "score": float(score[c - 1]), "score_before": float(score[max(c - 11, 0):max(c - 4, 1)].mean()),
             "conflict_before": float(conflict[c - 2]), "conflict_after": float(conflict[c:c + 3].max(initial=0.0)),
             "relation_error_m": error_m, "verdict": verdict, "undone_at": undo_of.get(int(c)),
+            "watch_conflict": watched_conflict(conflict, length, int(c), undo_of.get(int(c))),
         })
         last = c
     return rows
+
+
+def watched_conflict(conflict: np.ndarray, length: np.ndarray, c: int, undone_at: int | None) -> float:
+    """The mean share of beams in known free space over the scans that watched the
+    closure at scan ``c``: up to its undo, else over the next :data:`WATCH_M` of path
+    (the path's length stands in for the odometry distance the filter counts)."""
+    end = undone_at if undone_at is not None else int(np.searchsorted(length, length[c] + WATCH_M))
+    end = min(end, conflict.shape[0])
+    return float(conflict[c:end].mean()) if end > c else float("nan")  # conflict[i] is scan i + 1
 
 
 def plot(rows: list[dict], out: Path, title: str) -> None:
@@ -140,7 +155,8 @@ def main(argv=None) -> None:
         raise SystemExit(f"no runs match {args.runs}")
     rows = [row for p in paths for row in closures(p, relations)]
     print_table(rows, ["run", "scan", "jump_m", "turn_deg", "travelled_m", "jump_per_m", "score_before", "score",
-                       "conflict_before", "conflict_after", "relation_error_m", "verdict", "undone_at"])
+                       "conflict_before", "conflict_after", "relation_error_m", "verdict", "undone_at",
+                       "watch_conflict"])
     summary = {}
     for verdict in ("R", "W", "?"):
         after = np.array([r["conflict_after"] for r in rows if r["verdict"] == verdict])

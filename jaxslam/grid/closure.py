@@ -120,7 +120,11 @@ that gain is the search's.) It costs Killian's median: right closures undone
 (one that corrected a wrong one 150 scans before met its writes) or not taken later.
 Killian seeds 10-19 in one program with and without the undo (a traced parameter):
 mean 0.78 / median 0.81 / worst 1.62 m against 0.83 / 0.97 / 1.94 m.
-So the undo is the search's default.
+So the undo is the search's default. A threshold of 0.08 (session 43, one program):
+Killian seeds 0-9 mean 0.48 against 0.69 m (right closures kept there watch at up to
+0.074, wrong ones at 0.084-0.101), but the infinite corridor's kept closures watch at
+up to 0.108 and undoing them took it from 0.54 / 1.27 to 0.89 / 2.31 m (mean / worst
+seed); 0.11 stays.
 
 The search on by default (session 42): SRUPF-GM's default
 (:func:`jaxslam.grid.experiment.make_config`; the GMapping-style filter, a baseline for

@@ -71,14 +71,20 @@ def test_an_undone_closure_is_judged_on_the_path_as_tracked(tmp_path):
     closed[[699, 899, 929]] = True  # an undo sets track_closed too
     undo = np.zeros((n - 1, 4))
     undo[929] = [30.0, *correction]
+    conflict = np.zeros(n - 1)
+    conflict[900:930] = 0.25  # scans 901..930, watched in the wrong frame
+    conflict[930:960] = 0.9  # after the undo: not the closure's
     run = tmp_path / "run.npz"
     np.savez(run, trajectory=reported, scan_times=np.arange(n, dtype=float), info_track_closed=closed,
-             info_track_conflict=np.zeros(n - 1), info_track_score=np.full(n - 1, 0.5), info_track_undo=undo)
+             info_track_conflict=conflict, info_track_score=np.full(n - 1, 0.5), info_track_undo=undo)
     pairs = [(100, 720), (150, 910)]
     relations = Relations(None, np.array([float(a) for a, _ in pairs]), np.array([float(b) for _, b in pairs]),
                           np.array([truth[b] - truth[a] for a, b in pairs]), np.arange(1, 3))
     rows = closure_diagnostics.closures(str(run), relations)
     assert [r["scan"] for r in rows] == [700, 900]
     assert [r["undone_at"] for r in rows] == [None, 930]
+    # watched: scans 701.. (5 m of path at 0.1 m a scan: to scan 750) and 901..930
+    assert rows[0]["watch_conflict"] == pytest.approx(0.0)
+    assert rows[1]["watch_conflict"] == pytest.approx(0.25)
     assert rows[1]["verdict"] == "W" and rows[1]["relation_error_m"] == pytest.approx(3.0)
     assert rows[1]["jump_m"] == pytest.approx(np.hypot(0.1, 3.0))
