@@ -179,10 +179,12 @@ def run_scan_chunked(
         (from 0 when resuming from a checkpoint).
     """
     prior_leaves: list | None = None
+    prior_from = "prior"
     if prior is not None:
         prior_leaves = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(prior)]
     if checkpoint is not None and checkpoint.resume:
         carry, start, prior_leaves = checkpoint.load(carry)
+        prior_from = str(checkpoint.path)
         log(f"{desc}: resumed from {checkpoint.path} at step {start}", progress)
     if checkpoint is not None and checkpoint.every is not None:
         chunk = min(chunk, checkpoint.every)
@@ -204,6 +206,7 @@ def run_scan_chunked(
         if prior_leaves is not None:
             last = jax.tree_util.tree_map(lambda leaf: leaf[-1:], xs_all)
             shapes = jax.eval_shape(runner, carry, last, jnp.ones((1,), bool))[1]
+            _check_prior(prior_leaves, shapes, prior_from)
             ys = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(shapes), prior_leaves)
         return carry, ys, Timing(0.0, 0.0, 0)
 
@@ -230,6 +233,8 @@ def run_scan_chunked(
             xs_i, valid_i = (xs0, valid0) if i == 0 else chunk_inputs(i)
             carry, ys = compiled(carry, xs_i, valid_i)
             jax.block_until_ready(carry)
+            if i == 0 and prior_leaves is not None:
+                _check_prior(prior_leaves, ys, prior_from)
             n_valid = min(chunk, total - done)
             done += n_valid
             outputs.append(ys)
@@ -253,6 +258,22 @@ def run_scan_chunked(
                   for p, c in zip(prior_leaves, jax.tree_util.tree_leaves(ys))]
         ys = jax.tree_util.tree_unflatten(treedef, leaves)
     return carry, ys, Timing(compile_s, wall_s, done - start)
+
+
+def _check_prior(prior_leaves: list, ys, where: str) -> None:
+    """The outputs of the steps before (a checkpoint's, or ``prior``) must be this
+    run's outputs, array for array: a checkpoint written by another version of a
+    filter (an output added or removed) is refused rather than joined wrongly."""
+    from jaxslam.checkpoint import CheckpointError
+
+    leaves = jax.tree_util.tree_leaves(ys)
+    same = len(leaves) == len(prior_leaves) and all(
+        np.shape(p)[1:] == tuple(c.shape)[1:] and np.asarray(p).dtype == np.dtype(c.dtype)
+        for p, c in zip(prior_leaves, leaves))
+    if not same:
+        raise CheckpointError(
+            f"{where}: its saved outputs ({len(prior_leaves)} arrays) are not this run's ({len(leaves)} arrays, "
+            "per step shapes and dtypes): it was written by another version; start the run again")
 
 
 def _stack(outputs, length: int):

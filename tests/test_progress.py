@@ -98,6 +98,21 @@ def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path):
     with pytest.raises(CheckpointError, match="shape"):
         run_scan_chunked(step, (jnp.zeros(3, jnp.float32), jnp.array(0)), xs, chunk=8, progress=False,
                          checkpoint=Checkpoint(path, fingerprint=fingerprint, resume=True))
+    # outputs of another version of the step (one more output) are refused, not joined
+    def step_more(carry, x):
+        carry, ys = step(carry, x)
+        return carry, {**ys, "more": jnp.zeros(2)}
+
+    with pytest.raises(CheckpointError, match="outputs"):  # a finished run's checkpoint
+        run_scan_chunked(step_more, (jnp.array(0.0, jnp.float32), jnp.array(0)), xs, chunk=8, progress=False,
+                         checkpoint=Checkpoint(path, fingerprint=fingerprint, resume=True))
+    half = tmp_path / "half.npz"  # an interrupted run's: refused at its first chunk
+    with pytest.raises(Interrupt):
+        run_scan_chunked(step, (jnp.array(0.0, jnp.float32), jnp.array(0)), xs, chunk=8, progress=False,
+                         checkpoint=Checkpoint(half, every=8, fingerprint=fingerprint), callback=crash)
+    with pytest.raises(CheckpointError, match="outputs"):
+        run_scan_chunked(step_more, (jnp.array(0.0, jnp.float32), jnp.array(0)), xs, chunk=8, progress=False,
+                         checkpoint=Checkpoint(half, fingerprint=fingerprint, resume=True))
     # a truncated file is refused as corrupt
     path.write_bytes(path.read_bytes()[:100])
     with pytest.raises(CheckpointError, match="corrupt"):
