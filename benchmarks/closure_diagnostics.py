@@ -26,7 +26,7 @@ loop-closure search replaced the tracking's match (:mod:`jaxslam.grid.closure`):
 Runs saved since session 43 also hold ``info_track_undo``: their undos are not listed
 as closures, and every measure here is taken on the path as it was tracked (the
 reported path takes undone closures back, :func:`jaxslam.grid.closure.take_back`, and
-would hide them).
+would hide them; :func:`jaxslam.grid.closure.put_back` undoes that).
 
     python benchmarks/closure_diagnostics.py --log mit-killian --runs '/tmp/grid_robustness/s39_kil_drift*/*_drift_s*.npz' \\
         --name closure_diagnostics_killian
@@ -69,15 +69,13 @@ def closures(path: str, relations=None) -> list[dict]:
     closed = np.flatnonzero(run["info_track_closed"]) + 1  # info[i] is scan i + 1
     undo_of: dict[int, int] = {}
     if "info_track_undo" in run.files:  # since session 43: undos apart, and the path as tracked
-        from jaxslam.datasets.geometry import se2_inverse
-        from jaxslam.grid.closure import take_back
+        from jaxslam.grid.closure import put_back
 
         undo = np.asarray(run["info_track_undo"], np.float64).reshape(-1, 4)
         undone_at = np.flatnonzero(undo[:, 0] > 0) + 1
         undo_of = {int(b - round(undo[b - 1, 0])): int(b) for b in undone_at}
         closed = np.setdiff1d(closed, undone_at)
-        put_back = np.concatenate([undo[:, :1], se2_inverse(undo[:, 1:])], 1)
-        path_poses = take_back(path_poses, np.arange(path_poses.shape[0]), put_back)
+        path_poses = put_back(path_poses, np.arange(path_poses.shape[0]), undo)
     length = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path_poses[:, :2], axis=0).T))])
     if relations is not None:
         errors = relation_errors(relations, stamps, path_poses)

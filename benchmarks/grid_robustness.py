@@ -224,19 +224,17 @@ def score(
 def score_as_tracked(entry: dict, data, times, kf_i, kf_p, odom) -> dict[str, Any]:
     """Where closures were undone: how many, and the relations error of the path as it
     was tracked, before the reported path took them back
-    (:func:`jaxslam.grid.closure.take_back` with each correction inverted puts it back)."""
+    (:func:`jaxslam.grid.closure.put_back`)."""
     if "info_track_undo" not in data.files:
         return {}
     undo = np.asarray(data["info_track_undo"], np.float64).reshape(-1, 4)
     record: dict[str, Any] = {"closures_undone": int(np.sum(undo[:, 0] > 0))}
     if not record["closures_undone"]:
         return record
-    from jaxslam.datasets.geometry import se2_inverse
-    from jaxslam.grid.closure import take_back
+    from jaxslam.grid.closure import put_back
 
-    put_back = np.concatenate([undo[:, :1], se2_inverse(undo[:, 1:])], 1)
-    tracked = take_back(data["trajectory"], np.arange(data["trajectory"].shape[0]), put_back)
-    tracked_kf = take_back(kf_p, kf_i, put_back)
+    tracked = put_back(data["trajectory"], np.arange(data["trajectory"].shape[0]), undo)
+    tracked_kf = put_back(kf_p, kf_i, undo)
     scored = {**score(entry["relations"], entry["short"], times, tracked, kf_i, tracked_kf, odom),
               **score_benchmark(entry.get("bench"), tracked)}
     for key in ("mean_m", "max_m", "over_1m", "bench_mean_m"):

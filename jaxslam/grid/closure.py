@@ -436,6 +436,17 @@ def take_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndar
     what those scans wrote.) Undone windows never overlap: a closure taken inside
     another's watch restarts it, and only the last one is undone.
     """
+    return _move_windows(poses, scans, undo, inverse=True)
+
+
+def put_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndarray:
+    r"""Host: the inverse of :func:`take_back`, the path as it was tracked
+    (:math:`A \oplus x_s` on each undone window): what a diagnostic of the closures
+    themselves has to read, since the reported path hides an undone one."""
+    return _move_windows(poses, scans, undo, inverse=False)
+
+
+def _move_windows(poses, scans, undo, inverse: bool) -> np.ndarray:
     out = np.array(poses, np.float64, copy=True)
     undo = np.asarray(undo, np.float64).reshape(-1, 4)
     scans = np.asarray(scans, np.int64)
@@ -443,12 +454,13 @@ def take_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndar
         b = row + 1
         inside = (scans >= b - int(round(undo[row, 0]))) & (scans < b)
         if np.any(inside):
-            out[inside] = se2_compose(se2_inverse(undo[row, 1:])[None], out[inside])
+            correction = se2_inverse(undo[row, 1:]) if inverse else undo[row, 1:]
+            out[inside] = se2_compose(correction[None], out[inside])
     return out
 
 
 __all__ = [
     "BEAM_STRIDE", "FAST_SHARE", "MEMORY", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
     "candidate_scores", "close_loop", "closure_search", "coarse_window", "conflict_fraction", "record_applied",
-    "take_back", "window_half",
+    "put_back", "take_back", "window_half",
 ]

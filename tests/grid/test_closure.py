@@ -12,7 +12,7 @@ import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.grid.closure import (
-    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, take_back, window_half,
+    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, put_back, take_back, window_half,
 )
 from jaxslam.grid.map import GridSpec, dense_reader
 from jaxslam.grid.tracking import track as _track
@@ -233,6 +233,12 @@ def _closed_off(sim, state):
     return true_step, wrong, se2_compose(off_w[None], se2_between(true_w[None], np.zeros((1, 3))))[0]
 
 
+def _on_true_pose(true_step, result) -> bool:
+    """Whether ``track``'s motion lies within 5 cm and 0.5 deg of the true step."""
+    error = se2_between(true_step[None], np.asarray(result[0])[None])[0]
+    return bool(np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5))
+
+
 def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, tracked):
     """Scan 3 tracked in a frame that a closure moved 1.6 m and 5 deg off (the local
     match stays off, beyond the hill climb's reach). After ``closure_watch`` m with a
@@ -249,10 +255,9 @@ def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, 
         high = track(_watched(state, applied, 5.5, 3.0, 10.0), wrong, scans[3], undo, config)
         low = track(_watched(state, applied, 5.5, 0.5, 10.0), wrong, scans[3], undo, config)
         early = track(_watched(state, applied, 2.0, 3.0, 10.0), wrong, scans[3], undo, config)
-        error = se2_between(true_step[None], np.asarray(high[0])[None])[0]
         plain_error = se2_between(true_step[None], np.asarray(plain[0])[None])[0]
     assert np.hypot(*plain_error[:2]) > 1.0  # the local match alone stays off
-    assert bool(high[3]) and np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5), error
+    assert bool(high[3]) and _on_true_pose(true_step, high), high[0]
     memory = np.asarray(high[5])
     assert memory[8] == -1.0 and memory[4] == pytest.approx(5.5 + float(np.hypot(*wrong[:2])) + 7.0)
     np.testing.assert_allclose(memory[5:8], applied, atol=1e-12)
@@ -308,10 +313,9 @@ def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(s
         too_soon = track(_watched(state, applied, 0.0, 0.9, 1.0), wrong, scans[3], fast, config)
         off = track(_watched(state, applied, 4.0, 0.9, 1.0), wrong, scans[3],
                     fast._replace(closure_undo_fast=np.float64(1.0)), config)
-        error = se2_between(true_step[None], np.asarray(early[0])[None])[0]
     step = float(np.hypot(*wrong[:2]))
     assert 1.0 < step < 4.0
-    assert bool(early[3]) and np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5), error
+    assert bool(early[3]) and _on_true_pose(true_step, early), early[0]
     assert float(early[5][8]) == -1.0
     for kept in (one_scan, too_soon, off):
         assert not bool(kept[3])
@@ -341,6 +345,7 @@ def test_the_path_takes_back_an_undone_closure_on_the_scans_it_moved():
     np.testing.assert_array_equal(got[:20], reported[:20])
     np.testing.assert_array_equal(got[27:], reported[27:])
     np.testing.assert_array_equal(take_back(reported, np.arange(40), np.zeros((39, 4))), reported)
+    np.testing.assert_allclose(put_back(got, np.arange(40), undo), reported, atol=1e-12)  # the path as tracked
     keyframes = np.array([0, 12, 19, 20, 24, 27, 33])
     np.testing.assert_allclose(take_back(reported[keyframes], keyframes, undo), true[keyframes], atol=1e-12)
     # the inverse is the world-frame one (left), not a relative one
