@@ -182,9 +182,14 @@ def sim_log():
 
 
 def _run(log, **kw):
+    # The loop-closure search off: these runs test the paging, and the search, compiled
+    # into each of their chunk runners, nearly doubles the compilation (about 40 s of
+    # this module); the search reads the maps through the same page tables
+    # (tests/grid/test_closure.py).
     kw.setdefault("chunk", 8)
     return run_grid_slam(log, "srupf-gm", particles=3, seed=1, progress=False, linear_update=0.5,
-                         angular_update=0.3, config={"match_iterations": 3}, max_keyframes=33, **kw)
+                         angular_update=0.3, config={"match_iterations": 3, "closure": False},
+                         max_keyframes=33, **kw)
 
 
 # Grows the page table at init and at step 56 and the pool at step 11: three
