@@ -61,7 +61,8 @@ class GridSlamConfig:
             :func:`jaxslam.grid.experiment.make_config` turns it on for SRUPF-GM and
             leaves it off for the GMapping-style filter (measured in the module
             docstring); ``jaxslam run --loop-closure`` / ``--no-loop-closure`` choose.
-        closure_radius: the search's reach in position (m, each axis).
+        closure_radius: the search's reach in position (m, each axis; 6 m since
+            session 44, measured in :mod:`jaxslam.grid.closure`).
         closure_turn: the search's reach in heading (rad, either way).
     """
 
@@ -82,7 +83,7 @@ class GridSlamConfig:
     tracking: bool = True
     constrain_matches: bool = True
     closure: bool = False
-    closure_radius: float = 4.0
+    closure_radius: float = 6.0
     closure_turn: float = 0.14
 
     def __post_init__(self):

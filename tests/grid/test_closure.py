@@ -139,6 +139,25 @@ def test_a_guess_metres_off_is_closed_onto_the_map(sim, tracked):
     assert not bool(default[3])
 
 
+def test_the_default_reach_closes_a_guess_beyond_four_metres(sim, tracked):
+    """The odometry puts scan 3 4.6 m off along the corridor (MIT Killian's right
+    closures jump up to 4.9 m): the default reach (6 m since session 44) closes it onto
+    the map; the old 4 m reach cannot (the test can fail)."""
+    track, state, scans, params, config = tracked
+    at_once = params._replace(closure_confirm=np.float64(1.0))
+    assert config.closure_radius == 6.0
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[4.6, 0.4, math.radians(2.0)]]))[0]
+        motion, score, accepted, closed, *_ = track(state, wrong, scans[3], at_once, config)
+        near = track(state, wrong, scans[3], at_once, dataclasses.replace(config, closure_radius=4.0))
+    error = se2_between(true_step[None], np.asarray(motion)[None])[0]
+    assert bool(closed) and bool(accepted), (score, error)
+    assert np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5), error
+    near_error = se2_between(true_step[None], np.asarray(near[0])[None])[0]
+    assert np.hypot(*near_error[:2]) > 0.5, near_error
+
+
 def test_a_good_match_is_left_alone(sim, tracked):
     """A match that scores above the trigger never runs the search: the tracked motion
     is the one without it, bit for bit."""
