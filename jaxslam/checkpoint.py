@@ -11,10 +11,18 @@ crash while saving leaves the previous checkpoint intact.
 Loading checks the fingerprint, the pytree structure and every leaf's shape and
 dtype against the run being resumed; a corrupt file or any mismatch raises
 :class:`CheckpointError` that names the file and the problem.
+
+A checkpoint also records :func:`code_digest`, a digest of jaxslam's own source, and
+only the same source resumes it. Another version can run other programs (a new
+default, such as the loop-closure search's reach in session 44, or a change in the
+order of float operations) while the state keeps its shapes, so a resumed run would
+silently join two versions' runs, equal to neither one's straight run.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import os
 import zipfile
@@ -30,6 +38,17 @@ FORMAT_VERSION = 1
 
 class CheckpointError(ValueError):
     """A checkpoint cannot be used (corrupt, or from another run)."""
+
+
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """A short SHA-256 digest of the jaxslam package's source: the relative path and
+    the bytes of every ``.py`` file in it (see the module docstring)."""
+    root = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
 
 
 def _leaves(tree) -> tuple[list[Any], Any]:
@@ -72,6 +91,7 @@ class Checkpoint:
             arrays[f"out_{i}"] = np.asarray(leaf)
         meta = {
             "format": FORMAT_VERSION,
+            "code": code_digest(),
             "done": int(done),
             "fingerprint": json.loads(json.dumps(self.fingerprint, sort_keys=True, default=str)),
             "carry_treedef": str(treedef),
@@ -129,6 +149,11 @@ class Checkpoint:
         where = str(self.path)
         files = self._read()
         meta = self._meta(files)
+        if meta.get("code") != code_digest():
+            raise CheckpointError(
+                f"{where}: written by another version of jaxslam (source digest {meta.get('code')!r}, this "
+                f"version's {code_digest()!r}); resuming would join two versions' runs: resume with the version "
+                "that wrote it, or start the run again")
         mine = json.loads(json.dumps(self.fingerprint, sort_keys=True, default=str))
         theirs = meta.get("fingerprint", {})
         differing = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))

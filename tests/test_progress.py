@@ -59,7 +59,7 @@ def test_runner_compiles_once_across_calls():
     assert len(traces) <= 2
 
 
-def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path):
+def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path, monkeypatch):
     import pytest
 
     from jaxslam.checkpoint import Checkpoint, CheckpointError
@@ -94,6 +94,14 @@ def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path):
     with pytest.raises(CheckpointError, match="seed"):
         run_scan_chunked(step, init, xs, chunk=8, progress=False,
                          checkpoint=Checkpoint(path, fingerprint={"algorithm": "toy", "seed": 1}, resume=True))
+    # a checkpoint written by another version of jaxslam's source is refused, naming the file
+    from jaxslam import checkpoint as checkpoint_module
+
+    with monkeypatch.context() as patch:
+        patch.setattr(checkpoint_module, "code_digest", lambda: "0123456789abcdef")
+        with pytest.raises(CheckpointError, match=r"ckpt\.npz: written by another version of jaxslam"):
+            run_scan_chunked(step, init, xs, chunk=8, progress=False,
+                             checkpoint=Checkpoint(path, fingerprint=fingerprint, resume=True))
     # a state of another shape is refused
     with pytest.raises(CheckpointError, match="shape"):
         run_scan_chunked(step, (jnp.zeros(3, jnp.float32), jnp.array(0)), xs, chunk=8, progress=False,
