@@ -167,7 +167,10 @@ m). MIT Killian seeds 0-9: 0.19 / 0.31 / 1.08 / 0.14 / 0.14 / 0.27 / 0.19 / 0.18
 0.10 / 0.10 (mean 0.27, median 0.18, worst 1.08) against 0.26 / 1.46 / 1.03 / 0.15 /
 0.86 / 0.14 / 1.54 / 0.70 / 0.10 / 0.69 (mean 0.69, median 0.69, worst 1.54). The
 seeds that had gone wrong near scan 16350 had missed the closure near scan 15770
-(where the others jumped 2.2-4.2 m): their drift there lay beyond 4 m. The
+(where the others jumped 2.2-4.2 m): their drift there lay beyond 4 m. (These runs
+are pinned to one core, so XLA compiles for one thread; on two threads, as ``jaxslam
+run`` compiles them, another draw, Killian seeds 0-4 gave a mean of 0.61 against 1.00
+and a worst seed of 1.03 against 1.62.) The
 perturbed infinite corridor: mean 0.43 against 0.54, worst seed 1.33 against 1.27
 (more closures along its axis, and more of them undone); the perturbed campus 0.45
 against 0.46 (worst 0.79 both: seed 0 takes no closure either way); perturbed
