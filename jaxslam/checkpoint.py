@@ -12,11 +12,12 @@ Loading checks the fingerprint, the pytree structure and every leaf's shape and
 dtype against the run being resumed; a corrupt file or any mismatch raises
 :class:`CheckpointError` that names the file and the problem.
 
-A checkpoint also records :func:`code_digest`, a digest of jaxslam's own source, and
-only the same source resumes it. Another version can run other programs (a new
-default, such as the loop-closure search's reach in session 44, or a change in the
-order of float operations) while the state keeps its shapes, so a resumed run would
-silently join two versions' runs, equal to neither one's straight run.
+A checkpoint also records :func:`code_digest`, a digest of jaxslam's own source and of
+the JAX and jaxlib versions, and only the same digest resumes it. Another version can
+run other programs (a new default, such as the loop-closure search's reach in session
+44, a change in the order of float operations, or another XLA) while the state keeps
+its shapes, so a resumed run would silently join two versions' runs, equal to neither
+one's straight run.
 """
 
 from __future__ import annotations
@@ -42,10 +43,13 @@ class CheckpointError(ValueError):
 
 @functools.lru_cache(maxsize=1)
 def code_digest() -> str:
-    """A short SHA-256 digest of the jaxslam package's source: the relative path and
-    the bytes of every ``.py`` file in it (see the module docstring)."""
+    """A short SHA-256 digest of the jaxslam package's source (the relative path and
+    the bytes of every ``.py`` file in it) and of the JAX and jaxlib versions, whose
+    compiler builds the programs (see the module docstring)."""
+    import jaxlib
+
     root = Path(__file__).resolve().parent
-    digest = hashlib.sha256()
+    digest = hashlib.sha256(f"jax {jax.__version__} jaxlib {jaxlib.__version__}\0".encode())
     for path in sorted(root.rglob("*.py")):
         digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()[:16]
@@ -151,7 +155,7 @@ class Checkpoint:
         meta = self._meta(files)
         if meta.get("code") != code_digest():
             raise CheckpointError(
-                f"{where}: written by another version of jaxslam (source digest {meta.get('code')!r}, this "
+                f"{where}: written by another version of jaxslam or JAX (digest {meta.get('code')!r}, this "
                 f"version's {code_digest()!r}); resuming would join two versions' runs: resume with the version "
                 "that wrote it, or start the run again")
         mine = json.loads(json.dumps(self.fingerprint, sort_keys=True, default=str))

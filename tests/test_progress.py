@@ -94,8 +94,14 @@ def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path, monkeypatch)
     with pytest.raises(CheckpointError, match="seed"):
         run_scan_chunked(step, init, xs, chunk=8, progress=False,
                          checkpoint=Checkpoint(path, fingerprint={"algorithm": "toy", "seed": 1}, resume=True))
-    # a checkpoint written by another version of jaxslam's source is refused, naming the file
+    # a checkpoint written by another version of jaxslam's source (or JAX's) is refused,
+    # naming the file; the digest covers the JAX version
     from jaxslam import checkpoint as checkpoint_module
+
+    with monkeypatch.context() as patch:
+        patch.setattr(jax, "__version__", jax.__version__ + ".other")
+        assert checkpoint_module.code_digest.__wrapped__() != checkpoint_module.code_digest()
+    assert checkpoint_module.code_digest.__wrapped__() == checkpoint_module.code_digest()
 
     with monkeypatch.context() as patch:
         patch.setattr(checkpoint_module, "code_digest", lambda: "0123456789abcdef")
