@@ -52,8 +52,15 @@ BEFORE = 300
 """A relation judges a closure when its earlier scan lies this many scans before it."""
 AFTER = 60
 """... and its later scan within this many scans after it."""
-WATCH_M = 5.0
-"""Path length over which ``watch_conflict`` averages (``closure_watch``'s default)."""
+def _default_watch() -> float:
+    from jaxslam.grid.types import default_params
+
+    return float(default_params(np.zeros(1), np.zeros(3)).closure_watch)
+
+
+WATCH_M = _default_watch()
+"""Path length over which ``watch_conflict`` averages: the filter's own ``closure_watch``
+default, read from :func:`jaxslam.grid.types.default_params` so the two cannot drift apart."""
 RIGHT_M = 0.5
 """A right closure's judging relations have a median translational error under this (m)."""
 

@@ -273,7 +273,7 @@ def _check_prior(prior_leaves: list, ys, where: str) -> None:
     if not same:
         raise CheckpointError(
             f"{where}: its saved outputs ({len(prior_leaves)} arrays) are not this run's ({len(leaves)} arrays, "
-            "per step shapes and dtypes): it was written by another version; start the run again")
+            "per step shapes and dtypes): it was written by another filter or version; start the run again")
 
 
 def _stack(outputs, length: int):
