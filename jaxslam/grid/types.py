@@ -64,6 +64,11 @@ class GridSlamConfig:
         closure_radius: the search's reach in position (m, each axis; 6 m since
             session 44, measured in :mod:`jaxslam.grid.closure`).
         closure_turn: the search's reach in heading (rad, either way).
+        closure_radius_far: the longest reach in position (m, a disc) of the search
+            that grows with the odometry distance since the last closure
+            (``closure_reach_rate``, :mod:`jaxslam.grid.closure`): a second coarse
+            stage, run only where that reach exceeds ``closure_radius``; at or below
+            ``closure_radius`` there is none.
     """
 
     num_particles: int
@@ -85,6 +90,7 @@ class GridSlamConfig:
     closure: bool = False
     closure_radius: float = 6.0
     closure_turn: float = 0.14
+    closure_radius_far: float = 10.0
 
     def __post_init__(self):
         choices = {
@@ -145,7 +151,9 @@ class GridSlamParams(NamedTuple):
     without recompiling) on ``closure_confirm`` scans in a row (the candidate's
     correction followed from scan to scan), moving the match by at most
     ``closure_jump`` (m) or ``closure_drift`` times the odometry distance since the
-    last closure, whichever is more. A closure taken is watched over the next
+    last closure, whichever is more. The search reaches ``closure_reach_rate`` (m per m;
+    0: the fixed reach) times that distance where this exceeds ``config.closure_radius``,
+    up to ``config.closure_radius_far``. A closure taken is watched over the next
     ``closure_watch`` m of odometry: where the share of the tracking's beams ending in
     known free space averages over ``closure_undo`` there, the closure is undone and
     its correction refused (1: never; see :mod:`jaxslam.grid.closure`). Before the
@@ -192,6 +200,7 @@ class GridSlamParams(NamedTuple):
     closure_gain: Array
     closure_confirm: Array
     closure_drift: Array
+    closure_reach_rate: Array
     closure_jump: Array
     closure_watch: Array
     closure_undo: Array
@@ -302,6 +311,7 @@ def default_params(
         "closure_gain": 1.5,
         "closure_confirm": 3.0,
         "closure_drift": 0.5,
+        "closure_reach_rate": 0.02,
         "closure_jump": 0.5,
         "closure_watch": 5.0,
         "closure_undo": 0.11,

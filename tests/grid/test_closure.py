@@ -158,6 +158,28 @@ def test_the_default_reach_closes_a_guess_beyond_four_metres(sim, tracked):
     assert np.hypot(*near_error[:2]) > 0.5, near_error
 
 
+def test_the_reach_grows_with_the_distance_since_the_last_closure(sim, tracked):
+    """Scan 3's guess 7.2 m off along the corridor lies beyond the fixed 6 m reach. After
+    100 m of odometry since the last closure (the fixture's) the reach stays at 6 m and
+    the guess stays off; after 450 m it is ``closure_reach_rate`` (0.02) x 450 = 9 m and
+    the far search closes it onto the map. A rate of 0 keeps the fixed reach (the test
+    can fail both ways)."""
+    track, state, scans, params, config = tracked
+    at_once = params._replace(closure_confirm=np.float64(1.0))
+    assert config.closure_radius_far == 10.0 and float(params.closure_reach_rate) == pytest.approx(0.02)
+    far_state = state._replace(closure_memory=state.closure_memory.at[4].set(450.0))
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[7.2, 0.3, math.radians(2.0)]]))[0]
+        short = track(state, wrong, scans[3], at_once, config)
+        long = track(far_state, wrong, scans[3], at_once, config)
+        fixed = track(far_state, wrong, scans[3], at_once._replace(closure_reach_rate=np.float64(0.0)), config)
+    assert bool(long[3]) and _on_true_pose(true_step, long), long[:4]
+    for off in (short, fixed):
+        error = se2_between(true_step[None], np.asarray(off[0])[None])[0]
+        assert np.hypot(*error[:2]) > 0.5, error
+
+
 def test_a_good_match_is_left_alone(sim, tracked):
     """A match that scores above the trigger never runs the search: the tracked motion
     is the one without it, bit for bit."""
