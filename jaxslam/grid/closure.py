@@ -206,8 +206,9 @@ pose drifted, 8.8 m away, and the tracking later slides onto that copy along a
 straight stretch (a closure moves the pose, not the map already written; the larger
 the jump, the larger the copy). Perturbed Intel, CSAIL, FHW, Seattle and Belgioioso
 and raw Intel and FR079 were the same to the last digit in both arms (measured in a
-first version, which refined in each stage; the two versions agree on 26 of the 28
-runs that both made). (Between programs that round differently a Killian seed is
+first version, which refined in each stage; the two versions agree to the last digit
+on 34 of the 40 one-thread runs that both made, and their two-thread runs are another
+draw as a whole). (Between programs that round differently a Killian seed is
 another run: the same rule scores 0.27 m mean over the one-thread seeds in session
 44's program and 0.65 m in this one, so only arms of one program compare.) Cost: the
 far stage's window and candidates grow as :math:`R_{far}^2`, 2.8 times the near
