@@ -19,8 +19,13 @@ Every program is cached, however small or quick to compile
 ``jax_persistent_cache_min_entry_size_bytes = -1``): a run compiles about a hundred
 small programs besides the filter's scan, and together they cost seconds. JAX keys
 each entry by the program text, the compile options, the JAX/XLA versions and the
-device, so a stale entry is never used; a cached executable computes bit for bit
-what a freshly compiled one computes (``tests/test_cache.py`` checks this).
+device; jaxslam adds the CPUs the process may use and XLA's thread pool
+(:func:`jaxslam.compiler.compile_environment`, through JAX's ``custom_hook`` of its
+cache key), which change what XLA's CPU compiler builds but which JAX's key leaves out.
+So a stale entry is never used, and a cached executable computes bit for bit what a
+freshly compiled one computes in the same process (``tests/test_cache.py`` checks
+both: a run with one thread after one with two, or pinned to one core after an
+unpinned one, compiles its own programs).
 
 The filters' chunk runners and the grid ``init`` are also kept there already traced
 and lowered (subfolder ``exports``, :mod:`jaxslam.executables`), so that a warm run
@@ -112,12 +117,34 @@ def enable_compilation_cache(cache_dir: os.PathLike | str | None = None) -> Path
             f"cannot create the compilation cache folder {str(path)!r} ({error.strerror or error}); "
             f"set {ENV_VAR} to another folder or to 'off'"
         ) from error
+    _key_the_compile_environment()
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     if current != str(path):
         jax.config.update("jax_compilation_cache_dir", str(path))
         compilation_cache.reset_cache()
     return path
+
+
+def _key_the_compile_environment() -> None:
+    """Add :func:`jaxslam.compiler.compile_environment` to every persistent-cache key
+    (JAX's ``cache_key.custom_hook``, called each time a key is made, so a thread pool
+    sized after the cache was turned on is keyed as well). Once per process."""
+    from jax._src import cache_key
+
+    from jaxslam.compiler import compile_environment
+
+    previous = getattr(cache_key, "custom_hook", None)
+    if previous is None:  # every JAX this project supports (>= 0.4.30) has it
+        raise RuntimeError("this JAX has no compilation-cache key hook; run with JAXSLAM_CACHE_DIR=off")
+    if getattr(previous, "jaxslam", False):
+        return
+
+    def custom_hook() -> str:
+        return previous() + "|jaxslam:" + compile_environment()
+
+    custom_hook.jaxslam = True
+    cache_key.custom_hook = custom_hook
 
 
 class CompileCounter:

@@ -60,7 +60,8 @@ OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
 """jaxslam's XLA options (see the module docstring)."""
 
 __all__ = [
-    "ENV_VAR", "OPTIONS", "THREADS_ENV", "auto_threads", "cpus_allowed", "jit", "jit_with", "options", "set_threads",
+    "ENV_VAR", "OPTIONS", "THREADS_ENV", "auto_threads", "compile_environment", "cpus_allowed", "jit", "jit_with",
+    "options", "set_threads", "thread_pool",
 ]
 
 
@@ -151,13 +152,34 @@ _STARTED_WITH: dict[str, int | None] | None = None
 def cpus_allowed() -> int:
     """How many CPUs this process may run on (its affinity, as ``taskset`` sets it; the
     CPU count where the platform has no affinity). XLA's CPU compiler builds a
-    different program for a different count, whatever the thread pool: JAX's cache
-    keys differ, and the rounding can. Runs recorded with it can be compared like for
-    like."""
+    different program for a different count (:func:`compile_environment`), and the
+    rounding can differ. Runs recorded with it can be compared like for like."""
     try:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         return os.cpu_count() or 1
+
+
+def thread_pool() -> int | None:
+    """The size of XLA's CPU thread pool in this process (None: XLA's default, every
+    core): the count :func:`set_threads` started the backend with, else the ``NPROC``
+    XLA reads when its backend starts."""
+    if _STARTED_WITH is not None:
+        return _STARTED_WITH["threads"]
+    current = os.environ.get("NPROC", "").strip()
+    return int(current) if current.isdigit() and int(current) > 0 else None
+
+
+def compile_environment() -> str:
+    """What XLA's CPU compiler builds a program for besides its text and options: the
+    CPUs this process may use (:func:`cpus_allowed`) and XLA's thread pool
+    (:func:`thread_pool`). Either changes the compiled program (XLA splits the generated
+    code by the parallelism it sees) and so, with the loop emitters, its rounding:
+    Intel, ``srupf-gm``, 30 particles, 150 keyframes gave 0.0234 m compiled with one
+    thread (``--threads 1``, or pinned with ``taskset -c 0``) and 0.0259 m with two. JAX's
+    cache key does not include them, so :mod:`jaxslam.cache` adds this string to it."""
+    pool = thread_pool()
+    return f"cpus={cpus_allowed()};threads={'all' if pool is None else pool}"
 
 
 def set_threads(threads: int | str | None, algorithm: str, particles: int) -> dict[str, Any]:
@@ -172,8 +194,9 @@ def set_threads(threads: int | str | None, algorithm: str, particles: int) -> di
     the backend (``jax.devices()``) and puts ``NPROC`` back as it was: the processes
     this one starts later do not inherit the choice. Once any JAX computation has run
     in the process it has no effect: then nothing changes and the returned record says
-    so. The pool size is part of the compiled program's cache key: a run with another
-    count compiles (and caches) its programs once.
+    so. The pool size is part of the compiled program's cache key
+    (:func:`compile_environment`): a run with another count compiles (and caches) its
+    programs once.
 
     Returns:
         ``{"threads": count or "all", "source": ...}`` for ``summary.json``; the source

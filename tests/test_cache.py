@@ -89,6 +89,43 @@ def test_warm_cache_compiles_nothing_and_results_are_bit_identical(tmp_path):
     assert cold["result"] == warm["result"] == off["result"]
 
 
+def _run_pinned(args: list[str], env_extra: dict[str, str], cpus: set[int] | None) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **env_extra}
+    if "NPROC" not in env_extra:
+        env.pop("NPROC", None)
+    proc = subprocess.run([sys.executable, "-c", PROGRAM, *args], capture_output=True, text=True, env=env,
+                          timeout=300, preexec_fn=None if cpus is None else lambda: os.sched_setaffinity(0, cpus))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs at least two CPUs and CPU affinity")
+def test_each_thread_pool_and_cpu_set_gets_its_own_entries(tmp_path):
+    """XLA compiles another program for another thread pool or CPU set (its rounding can
+    differ), and JAX's own key leaves both out: an entry stored with one thread must
+    not serve a run with all, nor one stored unpinned a run pinned to one core. Each
+    gets its own entries, and a repeat of the same setting hits them."""
+    from jaxslam.compiler import compile_environment
+
+    cache = str(tmp_path / "cache")
+    one_cpu = {min(os.sched_getaffinity(0))}
+    runs = {
+        "one thread": _run_pinned([cache], {"NPROC": "1"}, None),
+        "all threads": _run_pinned([cache], {}, None),
+        "pinned": _run_pinned([cache], {}, one_cpu),
+        "one thread again": _run_pinned([cache], {"NPROC": "1"}, None),
+        "pinned again": _run_pinned([cache], {}, one_cpu),
+    }
+    for name in ("one thread", "all threads", "pinned"):
+        assert runs[name]["counts"]["cache_hits"] == 0, (name, runs[name]["counts"])
+    for name in ("one thread again", "pinned again"):
+        assert runs[name]["counts"]["compiled"] == 0, (name, runs[name]["counts"])
+    assert runs["one thread"]["result"] == runs["one thread again"]["result"]
+    assert runs["pinned"]["result"] == runs["pinned again"]["result"]
+    assert compile_environment().startswith(f"cpus={len(os.sched_getaffinity(0))};threads=")
+
+
 def test_cli_no_cache_and_cache_dir_flags(tmp_path):
     from jaxslam import cli
 
