@@ -9,9 +9,9 @@
   The chunk runner is cached per (filter, static config), so a sweep over
   ``Params`` or a second run with the same shapes never recompiles. When a step
   is refused because the paged maps are full (:mod:`jaxslam.grid.paged`), the
-  layout grows on the host and the run continues from that step: one extra
-  compilation per growth, counted in :class:`RunStats`, and the same result as a run
-  that started with the larger layout.
+  page table moves or the layout grows on the host and the run continues from that
+  step: one extra compilation per growth (none for a move), counted in
+  :class:`RunStats`, and the same result as a run that started with the larger layout.
 """
 
 from __future__ import annotations
@@ -86,7 +86,8 @@ class RunStats:
 
     @property
     def recompilations(self) -> int:
-        return len(self.growths)
+        """Growths that changed the layout (a moved page table keeps the program)."""
+        return sum(1 for g in self.growths if g.get("recompiled", True))
 
 
 def compiler_options() -> tuple:
@@ -102,13 +103,17 @@ def layout_json(layout: PagedLayout) -> dict[str, Any]:
 def _grown(state, layout: PagedLayout, stats: RunStats, step: int, progress: bool):
     status = jax.tree_util.tree_map(np.asarray, state.status)
     maps, new_layout = grow(state.maps, layout, status)
-    what = "pool" if int(status.code) == 1 else "page table"
+    recompiled = new_layout != layout
+    what = "pool" if int(status.code) == 1 else "page table" if recompiled else "page table moved"
     stats.growths.append(
-        {"step": int(step), "grew": what, "slots": new_layout.slots,
-         "table": [new_layout.table_width, new_layout.table_height]}
+        {"step": int(step), "grew": what, "recompiled": recompiled, "slots": new_layout.slots,
+         "table": [new_layout.table_width, new_layout.table_height],
+         "corner": [int(c) for c in np.asarray(maps.corner)]}
     )
-    log(f"  maps: {what} grown at step {step} (pool {new_layout.slots} tiles, "
-        f"table {new_layout.table_width} x {new_layout.table_height}); recompiling", progress)
+    verb = "grown" if recompiled else "moved (no recompilation)"
+    log(f"  maps: {what} {verb} at step {step} (pool {new_layout.slots} tiles, "
+        f"table {new_layout.table_width} x {new_layout.table_height})" + ("; recompiling" if recompiled else ""),
+        progress)
     return reset_status(state._replace(maps=maps)), new_layout
 
 
@@ -134,6 +139,9 @@ def init_state(key, params, config: GridSlamConfig, first_scan, initial_pose, st
         if int(state.status.code) == 0:
             return state, config
         state, layout = _grown(state, config.layout, stats, 0, progress)
+        if layout == config.layout:  # moved: init makes its maps at the layout's corner, so start there
+            corner = np.asarray(state.maps.corner)
+            layout = dataclasses.replace(layout, table_x0=int(corner[0]), table_y0=int(corner[1]))
         config = dataclasses.replace(config, layout=layout)
 
 

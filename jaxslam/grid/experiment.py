@@ -75,8 +75,8 @@ class GridSlamResult:
         resamplings: number of resampling steps.
         state: the final filter state (particles, maps, weights) as host arrays.
         map_stats: pool and tile counts of the final maps (:func:`jaxslam.grid.paged.pool_stats`).
-        growths: each growth of the maps (step, what grew, new sizes); each cost a
-            recompilation.
+        growths: each growth of the maps (step, what grew, new sizes, whether it
+            recompiled: a moved page table does not).
         compiler_options: the XLA options the run's programs were compiled with
             (:mod:`jaxslam.compiler`).
     """
@@ -129,6 +129,7 @@ class GridSlamResult:
             "maps": dict(self.map_stats),
             "map_growths": len(self.growths),
             "map_growth_steps": [g["step"] for g in self.growths],
+            "map_recompilations": sum(1 for g in self.growths if g.get("recompiled", True)),
             "xla_compiler_options": dict(self.compiler_options),
             **self.closure_summary(),
         }
@@ -348,7 +349,7 @@ def run_grid_slam(
     kf_poses = best_trajectory(np.asarray(ys["poses"])[kf_rows], np.asarray(ys["ancestors"])[kf_rows], best)
     keyframes, trajectory = scan_trajectory(odom[0], flags, kf_poses, ys["motion"], ys["track_undo"])
     kf_poses = take_back(np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0), keyframes, ys["track_undo"])
-    cells, origin = stitch(state.maps.pool, state.maps.tables[best], cfg.layout)
+    cells, origin = stitch(state.maps.pool, state.maps.tables[best], state.maps.corner, cfg.layout)
     grid = cells.astype(np.float32) * unit
     info = {k: np.asarray(v)[kf_rows] for k, v in ys.items() if k not in PER_SCAN_KEYS}
     info.update({k: np.asarray(ys[k]) for k in PER_SCAN_KEYS if k not in ("poses", "ancestors")})

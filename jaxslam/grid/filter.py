@@ -83,7 +83,7 @@ def match_geometry(observation: Scan, params: GridSlamParams, config: GridSlamCo
 
 def particle_reader(state: GridSlamState, table: Array, config: GridSlamConfig):
     """The cell reader of the particle whose page table is ``table``."""
-    return reader(state.maps.pool, table, config.layout)
+    return reader(state.maps.pool, table, state.maps.corner, config.layout)
 
 
 def integrate_scan(maps, poses: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):

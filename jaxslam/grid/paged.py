@@ -4,11 +4,12 @@ Cells are ``int8`` quantised log-odds as in :mod:`jaxslam.grid.map`. They live i
 square tiles of ``T x T`` cells (``T = 2**tile_bits``, 64 by default: 3.2 m at 5 cm)
 held in one pool ``(S, T*T)`` shared by all particles. Each particle has a page table
 ``(TY * TX,)`` from tile coordinates to pool slots; the table covers the tile box
-``[table_x0, table_x0 + TX) x [table_y0, table_y0 + TY)`` in the map frame, whose
+``[x_c, x_c + TX) x [y_c, y_c + TY)`` in the map frame (``(x_c, y_c)`` the table's
+*corner*, ``PagedMaps.corner``, a traced value: see *Growth*), whose
 cell ``(c, r)`` is the square ``[c r_s, (c+1) r_s) x [r r_s, (r+1) r_s)`` (``r_s``
 the resolution; negative coordinates are fine). A cell is read as
 
-.. math:: \mathrm{pool}\big[\mathrm{table}[t_y, t_x],\ (r \bmod T)\,T + (c \bmod T)\big],
+.. math:: \mathrm{pool}\big[\mathrm{table}[t_y - y_c, t_x - x_c],\ (r \bmod T)\,T + (c \bmod T)\big],
     \qquad t_x = \lfloor c / T \rfloor,\ t_y = \lfloor r / T \rfloor,
 
 with slot 0 a tile that is never written: unknown (0) everywhere, so unallocated
@@ -28,12 +29,20 @@ gives the same maps as one that started with the larger pool. Freed slots are
 reclaimed by that same rule (no separate sweep); their old content is overwritten
 by the copy that fills them.
 
-*Growth.* The pool and the table have static shapes. When a step needs more free
-slots than the pool has, or touches a tile outside the table, the step is not
-applied: :class:`MapStatus` records why and what was wanted, the state is left as
-it was, and the host grows the pool (doubling) or the table (to cover the wanted
-box plus a margin) and runs the step again (:func:`grow`); each growth costs one
-recompilation.
+*Growth.* The pool and the table have static shapes; the table's corner does not.
+When a step needs more free slots than the pool has, or touches a tile outside the
+table, the step is not applied: :class:`MapStatus` records why and what was wanted,
+the state is left as it was, and the host makes room (:func:`grow`) and runs the
+step again. A full pool doubles (one recompilation). A table that the robot leaves
+is first *moved*: if the box of the tiles any particle holds, joined with the wanted
+tiles, fits in the table's size with ``margin_tiles`` to spare on each side, the
+corner moves so that this box sits in the middle and the entries move with it (a
+host copy of the tables, no recompilation, the same cells). Only when it does not
+fit does the table grow (to that box, plus at least half its size again on each side
+that grew; one recompilation). The starting table covers the odometry box, which on
+a log with heading drift can lie far from where the robot really goes (MIT Killian:
+x -630..30 m, y -490..90 m by odometry, -60..210 m and -25..220 m corrected): moving
+it costs nothing where growing it twice cost two compilations of the filter.
 
 Cost: a write touches only the tiles under the scan; resampling copies page tables
 (``P x TY x TX`` int32) and no cells; memory is ``S x T^2`` bytes for the pool, so it
@@ -74,7 +83,8 @@ class PagedLayout:
     Attributes:
         resolution: metres per cell.
         tile_bits: tiles are ``2**tile_bits`` cells on a side.
-        table_x0, table_y0: tile coordinates of page-table entry ``(0, 0)``.
+        table_x0, table_y0: tile coordinates of page-table entry ``(0, 0)`` when the
+            maps are made; the table can move later (``PagedMaps.corner``).
         table_width, table_height: page-table size in tiles (``TX``, ``TY``).
         slots: pool size in tiles, slot 0 (unknown) included.
         origin_x, origin_y: world position (m) of the corner of cell ``(0, 0)``
@@ -146,6 +156,7 @@ class PagedMaps(NamedTuple):
     pool: Array  # (S, T*T) int8
     tables: Array  # (P, TY*TX) int32 slot per tile (0: unknown)
     refcount: Array  # (S,) int32
+    corner: Array  # (2,) int32 tile (x, y) of table entry 0 (moves when the table does)
 
 
 class MapStatus(NamedTuple):
@@ -167,16 +178,18 @@ def init_maps(num_particles: int, layout: PagedLayout) -> PagedMaps:
         pool=jnp.zeros((layout.slots, layout.tile_cells), CELL_DTYPE),
         tables=jnp.zeros((num_particles, layout.table_size), jnp.int32),
         refcount=jnp.zeros((layout.slots,), jnp.int32).at[0].set(PINNED),
+        corner=jnp.asarray([layout.table_x0, layout.table_y0], jnp.int32),
     )
 
 
 # ----------------------------------------------------------------------------- reads
 
 
-def table_entry(cols: Array, rows: Array, layout: PagedLayout) -> tuple[Array, Array]:
-    """Page-table entry of the tiles holding cells ``(cols, rows)`` and whether it exists."""
-    ix = (cols >> layout.tile_bits) - layout.table_x0
-    iy = (rows >> layout.tile_bits) - layout.table_y0
+def table_entry(cols: Array, rows: Array, layout: PagedLayout, corner: Array) -> tuple[Array, Array]:
+    """Page-table entry of the tiles holding cells ``(cols, rows)`` and whether it exists
+    (``corner``: the table's, :attr:`PagedMaps.corner`)."""
+    ix = (cols >> layout.tile_bits) - corner[0]
+    iy = (rows >> layout.tile_bits) - corner[1]
     inside = (ix >= 0) & (ix < layout.table_width) & (iy >= 0) & (iy < layout.table_height)
     return jnp.where(inside, iy * layout.table_width + ix, 0), inside
 
@@ -187,18 +200,18 @@ def local_cell(cols: Array, rows: Array, layout: PagedLayout) -> Array:
     return ((rows & mask) << layout.tile_bits) | (cols & mask)
 
 
-def read_cells(pool: Array, table: Array, cols: Array, rows: Array, layout: PagedLayout) -> Array:
+def read_cells(pool: Array, table: Array, corner: Array, cols: Array, rows: Array, layout: PagedLayout) -> Array:
     """Cells ``(cols, rows)`` (int32, any shape) of one particle's map; unknown is 0."""
-    entry, inside = table_entry(cols, rows, layout)
+    entry, inside = table_entry(cols, rows, layout, corner)
     slot = jnp.where(inside, table[entry], 0)
     return pool.reshape(-1)[slot * layout.tile_cells + local_cell(cols, rows, layout)]
 
 
-def reader(pool: Array, table: Array, layout: PagedLayout):
+def reader(pool: Array, table: Array, corner: Array, layout: PagedLayout):
     """``(cols, rows) -> cells`` for one particle (the score functions' cell reader)."""
 
     def read(cols: Array, rows: Array) -> Array:
-        return read_cells(pool, table, cols, rows, layout)
+        return read_cells(pool, table, corner, cols, rows, layout)
 
     return read
 
@@ -249,8 +262,8 @@ def plan_writes(maps: PagedMaps, touched: Array, x0: Array, y0: Array, side: int
     wy = jnp.arange(k, dtype=jnp.int32) // side
     tx = x0[:, None] + wx[None, :]
     ty = y0[:, None] + wy[None, :]
-    ix = tx - layout.table_x0
-    iy = ty - layout.table_y0
+    ix = tx - maps.corner[0]
+    iy = ty - maps.corner[1]
     inside = (ix >= 0) & (ix < layout.table_width) & (iy >= 0) & (iy < layout.table_height)
     entry = jnp.where(inside, iy * layout.table_width + ix, 0)
     slot = jnp.where(inside, jnp.take_along_axis(maps.tables, entry, 1), 0)
@@ -306,7 +319,7 @@ def plan_writes(maps: PagedMaps, touched: Array, x0: Array, y0: Array, side: int
         new_slot, mode="drop"
     )
     window_slots = jnp.where(touched & ok, new_slot, 0)
-    return WritePlan(x0, y0, window_slots, PagedMaps(pool, tables, refcount), status)
+    return WritePlan(x0, y0, window_slots, PagedMaps(pool, tables, refcount, maps.corner), status)
 
 
 def resample_maps(maps: PagedMaps, ancestors: Array, resampled: Array) -> PagedMaps:
@@ -322,24 +335,29 @@ def resample_maps(maps: PagedMaps, ancestors: Array, resampled: Array) -> PagedM
         return tables, counts.at[0].set(PINNED)
 
     tables, refcount = jax.lax.cond(resampled, take, lambda tr: tr, (maps.tables, maps.refcount))
-    return PagedMaps(maps.pool, tables, refcount)
+    return PagedMaps(maps.pool, tables, refcount, maps.corner)
 
 
 # ----------------------------------------------------------------------------- host side
 
 
 def grow(maps: PagedMaps, layout: PagedLayout, status: MapStatus, margin_tiles: int = 4) -> tuple[PagedMaps, PagedLayout]:
-    """Host: a larger pool and/or table for a step that was refused (see module docstring).
+    """Host: room for a step that was refused (see the module docstring).
 
-    The pool doubles (or more, to fit the request with room to spare); the table grows
-    to the union of its box and the wanted tiles, plus ``margin_tiles`` and at least
-    half its size again on each side that grew. Cell contents and slot numbers are
-    unchanged, so the run continues exactly as one with the larger layout would.
+    A full pool doubles (or more, to fit the request with room to spare). A step
+    outside the table moves the table's corner where the box of the held and the wanted
+    tiles fits with ``margin_tiles`` to spare on each side; the layout, and so the
+    compiled program, stays the same. Otherwise the table grows to fit that box (at
+    least half its size again in each dimension that is too small). Cell contents and
+    slot numbers are unchanged, so the run continues exactly as one with the larger
+    layout would. Returns ``(maps, layout)``; the layout is ``layout`` itself after a
+    move.
     """
     code = int(status.code)
     pool = np.asarray(maps.pool)
     tables = np.asarray(maps.tables)
     refcount = np.asarray(maps.refcount)
+    corner = np.asarray(maps.corner).astype(np.int64)
     new = layout
     if code == STATUS_POOL_FULL:
         used = int(np.sum(refcount != 0))
@@ -348,35 +366,47 @@ def grow(maps: PagedMaps, layout: PagedLayout, status: MapStatus, margin_tiles: 
         pool = np.concatenate([pool, np.zeros((slots - layout.slots, pool.shape[1]), pool.dtype)])
         refcount = np.concatenate([refcount, np.zeros((slots - layout.slots,), refcount.dtype)])
     elif code == STATUS_OUTSIDE_TABLE:
-        lo = np.asarray(status.tile_lo)
-        hi = np.asarray(status.tile_hi)
-        x0, y0 = layout.table_x0, layout.table_y0
-        x1, y1 = x0 + layout.table_width - 1, y0 + layout.table_height - 1
-        gx = max(margin_tiles, layout.table_width // 2)
-        gy = max(margin_tiles, layout.table_height // 2)
-        nx0 = min(x0, int(lo[0]) - gx) if lo[0] < x0 else x0
-        ny0 = min(y0, int(lo[1]) - gy) if lo[1] < y0 else y0
-        nx1 = max(x1, int(hi[0]) + gx) if hi[0] > x1 else x1
-        ny1 = max(y1, int(hi[1]) + gy) if hi[1] > y1 else y1
-        new = layout.with_table(nx0, ny0, nx1, ny1)
-        grid = tables.reshape(tables.shape[0], layout.table_height, layout.table_width)
-        out = np.zeros((tables.shape[0], new.table_height, new.table_width), tables.dtype)
-        oy, ox = y0 - ny0, x0 - nx0
-        out[:, oy : oy + layout.table_height, ox : ox + layout.table_width] = grid
+        width, height = layout.table_width, layout.table_height
+        grid = tables.reshape(tables.shape[0], height, width)
+        rows, cols = np.nonzero(np.any(grid != 0, axis=0))
+        lo = np.asarray(status.tile_lo).astype(np.int64)
+        hi = np.asarray(status.tile_hi).astype(np.int64)
+        if cols.size:
+            held_lo = np.array([cols.min(), rows.min()]) + corner
+            held_hi = np.array([cols.max(), rows.max()]) + corner
+            lo, hi = np.minimum(lo, held_lo), np.maximum(hi, held_hi)
+        size = hi - lo + 1
+        need = size + 2 * margin_tiles
+        if need[0] > width or need[1] > height:
+            width = width if need[0] <= width else int(max(need[0], width + width // 2))
+            height = height if need[1] <= height else int(max(need[1], height + height // 2))
+        new_corner = lo - (np.array([width, height]) - size) // 2
+        out = np.zeros((tables.shape[0], height, width), tables.dtype)
+        if cols.size:
+            src = grid[:, rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
+            dx, dy = held_lo - new_corner
+            out[:, dy : dy + src.shape[1], dx : dx + src.shape[2]] = src
         tables = out.reshape(tables.shape[0], -1)
+        corner = new_corner
+        if (width, height) != (layout.table_width, layout.table_height):
+            new = layout.with_table(corner[0], corner[1], corner[0] + width - 1, corner[1] + height - 1)
     else:
         raise ValueError(f"nothing to grow for status {code}")
-    return PagedMaps(jnp.asarray(pool), jnp.asarray(tables), jnp.asarray(refcount)), new
+    maps = PagedMaps(jnp.asarray(pool), jnp.asarray(tables), jnp.asarray(refcount),
+                     jnp.asarray(corner, jnp.int32))
+    return maps, new
 
 
-def stitch(pool, table, layout: PagedLayout) -> tuple[np.ndarray, tuple[float, float]]:
-    """Host: one particle's map as a dense ``(H, W)`` int8 array over its allocated tiles.
+def stitch(pool, table, corner, layout: PagedLayout) -> tuple[np.ndarray, tuple[float, float]]:
+    """Host: one particle's map as a dense ``(H, W)`` int8 array over its allocated tiles
+    (``corner``: the table's, :attr:`PagedMaps.corner`).
 
     Returns:
         ``(grid, (origin_x, origin_y))``: row 0 at ``origin_y``, rows grow with y;
         a map with no tile yet gives one unknown tile at the table's corner.
     """
     pool = np.asarray(pool)
+    corner = np.asarray(corner).astype(np.int64)
     table = np.asarray(table).reshape(layout.table_height, layout.table_width)
     t = layout.tile
     ys, xs = np.nonzero(table)
@@ -387,8 +417,8 @@ def stitch(pool, table, layout: PagedLayout) -> tuple[np.ndarray, tuple[float, f
     tiles = pool[sub].reshape(sub.shape[0], sub.shape[1], t, t)  # slot 0 is all zeros
     grid = tiles.transpose(0, 2, 1, 3).reshape(sub.shape[0] * t, sub.shape[1] * t)
     origin = (
-        layout.origin_x + (layout.table_x0 + tx0) * layout.tile_metres,
-        layout.origin_y + (layout.table_y0 + ty0) * layout.tile_metres,
+        layout.origin_x + float(corner[0] + tx0) * layout.tile_metres,
+        layout.origin_y + float(corner[1] + ty0) * layout.tile_metres,
     )
     return grid, origin
 

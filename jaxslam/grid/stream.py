@@ -293,10 +293,11 @@ class StreamingGridSlam:
             (self.state, self.params), ys = runner((self.state, self.params), key, control, scan)
             if int(ys["status"]) == 0:
                 break
-            # The maps are full: grow them (one recompilation) and run the step again.
+            # The maps are full: move or grow them (a growth recompiles) and run the step again.
             self.state, layout = driver._grown(self.state, self.config.layout, self.stats, step, False)
-            self.config = dataclasses.replace(self.config, layout=layout)
-            self.counts["recompilations"] += 1
+            if layout != self.config.layout:
+                self.config = dataclasses.replace(self.config, layout=layout)
+                self.counts["recompilations"] += 1
         ys = jax.device_get(ys)
         keyframe = bool(ys["keyframe"])
         self._flags.append(keyframe)
@@ -339,7 +340,8 @@ class StreamingGridSlam:
         """``(log_odds (H, W) float32, resolution, origin)`` of the best particle's map
         (row 0 at ``origin`` y)."""
         best = self.best_index()
-        cells, origin = stitch(self.state.maps.pool, self.state.maps.tables[best], self.config.layout)
+        cells, origin = stitch(self.state.maps.pool, self.state.maps.tables[best], self.state.maps.corner,
+                               self.config.layout)
         return cells.astype(np.float32) * float(self.params.log_odds_unit), self.config.layout.resolution, origin
 
     def step_versions(self) -> int:

@@ -258,6 +258,6 @@ class GridLiveLog:
             self._scan_at(scan, path[number + 1], laser_offset)
         viz.trajectory(path)
         layout = PagedLayout(**self.static["layout"])
-        cells, origin = stitch(state.maps.pool, state.maps.tables[best], layout)
+        cells, origin = stitch(state.maps.pool, state.maps.tables[best], state.maps.corner, layout)
         viz.grid_map(cells.astype(np.float32) * unit, layout.resolution, origin)
         self._logged = int(done)

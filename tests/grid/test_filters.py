@@ -77,7 +77,7 @@ def test_simulated_run_beats_odometry(kind):
     assert heading_err.max() < 0.05
     assert int(info.dropped_points.max()) == 0
     assert bool(np.all(np.asarray(info.pd_ok)))
-    g, _ = stitch(state.maps.pool, state.maps.tables[int(best_particle(state))], SPEC)
+    g, _ = stitch(state.maps.pool, state.maps.tables[int(best_particle(state))], state.maps.corner, SPEC)
     assert g.dtype == np.int8 and (g > 0).sum() > 500
 
 

@@ -54,7 +54,7 @@ def assert_same_as_dense(maps, layout, grids):
     """Every particle's stitched map equals its dense grid; nothing lies outside."""
     grids = np.asarray(grids)
     for p in range(grids.shape[0]):
-        cells, (ox, oy) = stitch(maps.pool, maps.tables[p], layout)
+        cells, (ox, oy) = stitch(maps.pool, maps.tables[p], maps.corner, layout)
         c0 = int(round((ox - SPEC.origin_x) / SPEC.resolution))
         r0 = int(round((oy - SPEC.origin_y) / SPEC.resolution))
         expect = np.zeros_like(cells)
@@ -88,17 +88,17 @@ def intel_segment(scans: int = 40):
     return log.odom_poses[idx].astype(np.float32), ranges, log.valid[idx], log.angles.astype(np.float32)
 
 
-def test_paged_equals_dense_on_real_scans():
+def write_path(layout, scans: int = 40):
     """Intel scans at their odometry poses (3 particles jittered apart, resampled every
-    5th scan): cell for cell the dense result, in a layout that starts with one tile
-    and a 2-slot pool, so both the table and the pool grow along the way."""
-    poses, ranges, valid, angles = intel_segment()
+    5th scan), written as paged maps (growing or moving as the driver does) and as
+    dense grids: ``(maps, layout, grids, corners the table had)``."""
+    poses, ranges, valid, angles = intel_segment(scans)
     rng = np.random.default_rng(0)
     num = 3
-    layout = PagedLayout(0.05, 6, -1, -1, 1, 1, slots=2, origin_x=SPEC.origin_x, origin_y=SPEC.origin_y)
     maps = init_maps(num, layout)
     grids = jnp.zeros((num,) + SPEC.shape, jnp.int8)
     angles = jnp.asarray(angles)
+    corners = [tuple(np.asarray(maps.corner))]
     for t in range(poses.shape[0]):
         p = jnp.asarray(poses[t] + rng.normal(0, 0.05, (num, 3)), jnp.float32)
         r, v = jnp.asarray(ranges[t]), jnp.asarray(valid[t])
@@ -109,6 +109,16 @@ def test_paged_equals_dense_on_real_scans():
             maps = resample_maps(maps, anc, jnp.asarray(True))
             grids = grids[anc]
         check_refcounts(maps)
+        if tuple(np.asarray(maps.corner)) != corners[-1]:
+            corners.append(tuple(np.asarray(maps.corner)))
+    return maps, layout, grids, corners
+
+
+def test_paged_equals_dense_on_real_scans():
+    """Cell for cell the dense result, in a layout that starts with one tile and a
+    2-slot pool, so both the table and the pool grow along the way."""
+    layout = PagedLayout(0.05, 6, -1, -1, 1, 1, slots=2, origin_x=SPEC.origin_x, origin_y=SPEC.origin_y)
+    maps, layout, grids, _ = write_path(layout)
     assert layout.slots > 2 and layout.table_size > 1
     assert_same_as_dense(maps, layout, grids)
 
@@ -133,7 +143,7 @@ def test_one_particles_writes_never_change_another(data):
         poses = jnp.asarray(np.c_[xy, np.zeros(num)], jnp.float32)
         r = jnp.asarray(data.draw(st.lists(st.floats(0.2, 6.0), min_size=36, max_size=36)), jnp.float32)
         v = jnp.ones((36,), bool)
-        before = [stitch(maps.pool, maps.tables[p], layout)[0] for p in range(num)]
+        before = [stitch(maps.pool, maps.tables[p], maps.corner, layout)[0] for p in range(num)]
         if writers.size:
             idx = jnp.asarray(writers)
             sub = maps._replace(tables=maps.tables[idx])
@@ -144,7 +154,7 @@ def test_one_particles_writes_never_change_another(data):
             grids = grids.at[idx].set(dense_update(grids[idx], poses[idx], r, v, angles))
         check_refcounts(maps)
         for p in set(range(num)) - set(writers.tolist()):
-            np.testing.assert_array_equal(stitch(maps.pool, maps.tables[p], layout)[0], before[p])
+            np.testing.assert_array_equal(stitch(maps.pool, maps.tables[p], maps.corner, layout)[0], before[p])
         anc = np.sort(np.asarray(data.draw(st.lists(st.integers(0, num - 1), min_size=num, max_size=num))))
         maps = resample_maps(maps, jnp.asarray(anc), jnp.asarray(True))
         grids = grids[anc]
@@ -262,3 +272,67 @@ def test_checkpoint_of_growing_run_resumes_bit_for_bit(sim_log, growing_run, tmp
     resumed = _run(sim_log, checkpoint=Checkpoint(path, every=8, resume=True), **SMALL)
     np.testing.assert_array_equal(resumed.trajectory, growing_run.trajectory)
     np.testing.assert_array_equal(resumed.map_log_odds, growing_run.map_log_odds)
+
+
+def test_a_table_the_robot_leaves_moves_without_changing_a_cell():
+    """grow() on a step outside the table: where the held and the wanted tiles fit with
+    the margin to spare, the layout stays (no recompilation), the corner moves so that
+    they sit in the middle, and every held tile keeps its slot at its world tile;
+    otherwise the table grows."""
+    from jaxslam.grid.paged import STATUS_OUTSIDE_TABLE, MapStatus, PagedMaps
+
+    rng = np.random.default_rng(0)
+    layout = PagedLayout(0.05, 6, table_x0=-3, table_y0=2, table_width=24, table_height=12, slots=64)
+    tables = np.zeros((3, 12, 24), np.int32)
+    tables[:, 4:7, 17:21] = rng.integers(1, 64, (3, 3, 4))  # held tiles x 14..17, y 6..8
+    tables[1, 5, 22] = 17  # x 19, y 7, held by one particle
+    maps = PagedMaps(jnp.zeros((64, layout.tile_cells), jnp.int8), jnp.asarray(tables.reshape(3, -1)),
+                     jnp.ones((64,), jnp.int32), jnp.asarray([-3, 2], jnp.int32))
+
+    def held(m, lay):
+        corner = np.asarray(m.corner)
+        grid = np.asarray(m.tables).reshape(3, lay.table_height, lay.table_width)
+        return {(p, int(x) + corner[0], int(y) + corner[1]): int(grid[p, y, x]) for p, y, x in zip(*np.nonzero(grid))}
+
+    def outside(lo, hi):
+        return MapStatus(jnp.int32(STATUS_OUTSIDE_TABLE), jnp.int32(0), jnp.asarray(lo), jnp.asarray(hi))
+
+    # wanted: tiles x 21..22, y 7..8, past the table's right edge (x -3..20)
+    moved, same = grow(maps, layout, outside([21, 7], [22, 8]))
+    assert same is layout  # the program stays
+    assert held(moved, layout) == held(maps, layout)  # every held tile where it was in the world
+    np.testing.assert_array_equal(moved.corner, [14 - (24 - 9) // 2, 6 - (12 - 3) // 2])  # box x 14..22, y 6..8
+
+    # wanted far away: the box (x 14..41, with the margin 36 tiles) no longer fits in 24
+    grown, bigger = grow(moved, layout, outside([40, 7], [41, 8]))
+    assert (bigger.table_width, bigger.table_height) == (36, 12)
+    assert held(grown, bigger) == held(maps, layout)
+    assert (bigger.table_x0, bigger.table_y0) == tuple(int(c) for c in np.asarray(grown.corner))
+
+
+def test_a_table_the_path_leaves_moves_and_the_maps_equal_the_dense_ones():
+    """Intel scans whose path leaves a starting table of 24 x 24 tiles placed with the
+    start near its lower left corner: the table moves (the layout, so the compiled
+    write, stays), and every particle's map equals its dense grid."""
+    layout = PagedLayout(0.05, 6, 6, 6, 24, 24, slots=1024, origin_x=SPEC.origin_x, origin_y=SPEC.origin_y)
+    maps, end, grids, corners = write_path(layout, 120)
+    assert end == layout and len(corners) > 1  # moved, never grown
+    assert_same_as_dense(maps, end, grids)
+
+
+def test_a_run_that_starts_off_its_table_moves_it_and_equals_a_run_that_started_there(sim_log):
+    """A starting table of a good size in the wrong place (30 m off the path, as a
+    drifting odometry box can be): init moves it instead of growing it, and the run
+    equals one whose table started where it was moved to."""
+    tm = PagedLayout().tile_metres
+    off = _run(sim_log, bounds=(30.0, 30.0, 30.0 + 15.5 * tm, 30.0 + 15.5 * tm), pool_slots=256)
+    assert [g["grew"] for g in off.growths] == ["page table moved"] and off.summary()["map_recompilations"] == 0
+    layout = off.config.layout
+    assert (layout.table_width, layout.table_height) == (16, 16)
+    np.testing.assert_array_equal(off.state.maps.corner, [layout.table_x0, layout.table_y0])
+    assert layout.table_x0 < 0 < layout.table_x0 + 16  # around the path now, not at 30 m
+    there = _run(sim_log, bounds=_box_of(layout), pool_slots=256)
+    assert there.summary()["map_growths"] == 0 and there.config.layout == layout
+    np.testing.assert_array_equal(off.trajectory, there.trajectory)
+    np.testing.assert_array_equal(off.map_log_odds, there.map_log_odds)
+    assert off.origin == there.origin
