@@ -93,8 +93,11 @@ def _run_pinned(args: list[str], env_extra: dict[str, str], cpus: set[int] | Non
     env = {**os.environ, "PYTHONPATH": str(ROOT), **env_extra}
     if "NPROC" not in env_extra:
         env.pop("NPROC", None)
-    proc = subprocess.run([sys.executable, "-c", PROGRAM, *args], capture_output=True, text=True, env=env,
-                          timeout=300, preexec_fn=None if cpus is None else lambda: os.sched_setaffinity(0, cpus))
+    # Pinned by the child itself, first thing (a preexec_fn would run Python between fork
+    # and exec in this multithreaded process).
+    pin = "" if cpus is None else f"import os; os.sched_setaffinity(0, {sorted(cpus)!r})\n"
+    proc = subprocess.run([sys.executable, "-c", pin + PROGRAM, *args], capture_output=True, text=True, env=env,
+                          timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
