@@ -210,11 +210,7 @@ def set_threads(threads: int | str | None, algorithm: str, particles: int) -> di
 
     global _STARTED_WITH
     if xla_bridge.backends_are_initialized():
-        if _STARTED_WITH is not None:
-            return record(_STARTED_WITH["threads"], "backend already started")
-        current = os.environ.get("NPROC")
-        return record(int(current) if current and current.isdigit() and int(current) > 0 else None,
-                      "backend already started")
+        return record(thread_pool(), "backend already started")
     if threads is not None:
         count, source = _parse_threads(threads, "threads"), "argument"
     elif os.environ.get(THREADS_ENV, "").strip():

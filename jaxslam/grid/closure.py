@@ -366,12 +366,10 @@ def refine_best(score_fn, candidates: Array, params, config) -> tuple[Array, Arr
 
 
 def closure_search(score_fn, read: CellReader, frame, local_points: Array, weights: Array, laser_offset: Array,
-                   start: Array, params, config, radius: float | None = None,
-                   reach: Array | None = None) -> tuple[Array, Array]:
-    """The best refined candidate around ``start``: ``(pose (3,), score ())``
-    (:func:`coarse_candidates`, then :func:`refine_best`)."""
-    candidates = coarse_candidates(read, frame, local_points, weights, laser_offset, start, params, config,
-                                   radius, reach)
+                   start: Array, params, config) -> tuple[Array, Array]:
+    """The best refined candidate within ``config.closure_radius`` of ``start``:
+    ``(pose (3,), score ())`` (:func:`coarse_candidates`, then :func:`refine_best`)."""
+    candidates = coarse_candidates(read, frame, local_points, weights, laser_offset, start, params, config)
     return refine_best(score_fn, candidates, params, config)
 
 
@@ -465,10 +463,10 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     def wide():  # the near coarse stage, or the far one where the drift bound reaches past it; one refinement
         far_radius = float(config.closure_radius_far)
         if far_radius <= float(config.closure_radius):
-            return closure_search(score_fn, read, frame, local_points, weights, laser_offset, matched, params,
-                                  config)
-        reach = jnp.minimum(jnp.asarray(params.closure_reach_rate, dtype) * travelled, far_radius)
-        candidates = jax.lax.cond(reach > float(config.closure_radius), lambda: coarse(far_radius, reach), coarse)
+            candidates = coarse()
+        else:
+            reach = jnp.minimum(jnp.asarray(params.closure_reach_rate, dtype) * travelled, far_radius)
+            candidates = jax.lax.cond(reach > float(config.closure_radius), lambda: coarse(far_radius, reach), coarse)
         return refine_best(score_fn, candidates, params, config)
 
     pose, found = jax.lax.cond(

@@ -86,8 +86,13 @@ class RunStats:
 
     @property
     def recompilations(self) -> int:
-        """Growths that changed the layout (a moved page table keeps the program)."""
-        return sum(1 for g in self.growths if g.get("recompiled", True))
+        return recompilations(self.growths)
+
+
+def recompilations(growths: list[dict[str, Any]]) -> int:
+    """Growths that changed the layout and so recompiled (a moved page table keeps the
+    program; :func:`_grown` records which)."""
+    return sum(1 for g in growths if g["recompiled"])
 
 
 def compiler_options() -> tuple:
@@ -213,6 +218,7 @@ __all__ = [
     "chunk_runner",
     "init_state",
     "layout_json",
+    "recompilations",
     "run_filter",
     "summarise",
 ]

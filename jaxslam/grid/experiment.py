@@ -26,7 +26,7 @@ import numpy as np
 from jaxslam.datasets.carmen import CarmenLog, load_dataset_log, select_keyframes
 from jaxslam.datasets.registry import algorithms
 from jaxslam.grid import gmapping, srupf
-from jaxslam.grid.driver import DEFAULT_CHUNK, run_filter
+from jaxslam.grid.driver import DEFAULT_CHUNK, recompilations, run_filter
 from jaxslam.grid.filter import best_particle
 from jaxslam.grid.paged import PagedLayout, pool_stats, stitch, window_side
 from jaxslam.grid.types import (
@@ -129,7 +129,7 @@ class GridSlamResult:
             "maps": dict(self.map_stats),
             "map_growths": len(self.growths),
             "map_growth_steps": [g["step"] for g in self.growths],
-            "map_recompilations": sum(1 for g in self.growths if g.get("recompiled", True)),
+            "map_recompilations": recompilations(self.growths),
             "xla_compiler_options": dict(self.compiler_options),
             **self.closure_summary(),
         }

@@ -38,8 +38,8 @@ is first *moved*: if the box of the tiles any particle holds, joined with the wa
 tiles, fits in the table's size with ``margin_tiles`` to spare on each side, the
 corner moves so that this box sits in the middle and the entries move with it (a
 host copy of the tables, no recompilation, the same cells). Only when it does not
-fit does the table grow (to that box, plus at least half its size again on each side
-that grew; one recompilation). The starting table covers the odometry box, which on
+fit does the table grow (to that box with the margin, and by at least half its size
+in each dimension that is too small; one recompilation). The starting table covers the odometry box, which on
 a log with heading drift can lie far from where the robot really goes (MIT Killian:
 x -630..30 m, y -490..90 m by odometry, -60..210 m and -25..220 m corrected): moving
 it costs nothing where growing it twice cost two compilations of the filter.

@@ -202,8 +202,8 @@ def _run(log, **kw):
                          max_keyframes=33, **kw)
 
 
-# Grows the page table at init and at step 56 and the pool at step 11: three
-# compilations of the chunk runner (the old box and pool needed five).
+# Grows the page table at init (before the chunk runner compiles) and the pool at step
+# 11: two compilations of the chunk runner (the old box and pool needed five).
 SMALL = {"bounds": (0.0, 0.0, 6.0, 8.0), "pool_slots": 16}
 
 
