@@ -5,8 +5,8 @@ The grid filters' programs that jaxslam compiles and runs itself (the chunk runn
 of :func:`jaxslam.grid.driver.run_filter`, which every CLI run, benchmark and notebook
 goes through, the ``init`` program, the streaming step and the grid calibration's
 objectives) are compiled with :func:`options`, through :func:`jit` (``jax.jit`` with
-``compiler_options``) or :func:`jaxslam.driver.chunk_runner`. Today that is one
-option:
+``compiler_options``) or :func:`jaxslam.driver.chunk_runner`. Today that is two
+options:
 
 * ``xla_cpu_use_fusion_emitters = False``. XLA's CPU backend can emit the loops of
   its fused kernels in two ways: the newer MLIR "fusion emitters" (XLA's default in
@@ -18,16 +18,25 @@ option:
   compilation 17.9 s -> 10.0 s, the GMapping-style filter 34.1 s -> 20.7 s and
   13.1 s -> 8.6 s, with the trajectory and the map bit for bit the same.
 
-  One caveat, measured: with these emitters the result can depend on the number of
-  threads XLA uses. XLA splits the generated LLVM module into parts compiled in
-  parallel, one per thread, and with the loop emitters the split changes the machine
-  code of some loops. Intel, ``srupf-gm``: at 30 particles one and two threads give
-  the same result (and the same as XLA's defaults); at 100 particles two threads give
-  another run than one thread, whereas XLA's defaults gave the one-thread result on
-  both. ``xla_cpu_parallel_codegen_split_count=1`` (in ``XLA_FLAGS``) removes the
-  dependence, at 3-4 s more compilation on two cores and the same run time. Code for
-  another CPU model (other vector instructions) can differ in any case, so runs are
-  reproducible on one machine, not bit for bit across machines.
+* ``xla_cpu_parallel_codegen_split_count = 8``: the same run whatever the thread
+  count or CPU set (session 47). XLA splits the generated LLVM module into parts that
+  it compiles in parallel, and with the loop emitters the split changes the machine
+  code, and so the rounding, of some loops. Left to XLA, the split follows the
+  thread pool: with one thread (``--threads 1``, or a process pinned to one core
+  with ``taskset``) the runs are those of an unsplit module, with more those of 32
+  parts (bit for bit, below). So one seed gave two runs, and the
+  filters' chaotic loop closures made them two different maps: MIT Killian,
+  ``srupf-gm``, 30 particles, seed 0, relations error 0.191 m pinned to one core and
+  1.080 m as ``jaxslam run`` ran it on two threads. A fixed split removes the
+  dependence. Measured (Intel, 30 particles, 150 keyframes, compilation cache off,
+  the 2-core EPYC VM): 1, 2, 8 and 16 parts all give the one-thread program's run
+  bit for bit, with one, two or four threads and pinned; 32 gives the other.
+  Compilation (5 programs, two threads): 15-16 s with 1 or 2 parts, 11.5-12.5 s with
+  8 or 16, 12-13 s with XLA's 32; the filter loop is the same within this machine's
+  noise. Killian's two-thread ``jaxslam run``, seed 0, now gives 0.191 m, the
+  pinned run's number to the last digit. Code for another CPU model (other vector
+  instructions) can still differ, so runs are reproducible on one kind of machine,
+  not bit for bit across machines.
 
 The landmark filters keep XLA's defaults: with this option they compile about 25 %
 faster but do not run faster (Victoria Park, ERB, 100 particles: 4.6 s either way
@@ -56,7 +65,7 @@ from typing import Any
 ENV_VAR = "JAXSLAM_XLA_OPTIONS"
 """``xla``: compile with XLA's default options instead of :data:`OPTIONS`."""
 
-OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
+OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False, "xla_cpu_parallel_codegen_split_count": 8}
 """jaxslam's XLA options (see the module docstring)."""
 
 __all__ = [
@@ -173,11 +182,14 @@ def thread_pool() -> int | None:
 def compile_environment() -> str:
     """What XLA's CPU compiler builds a program for besides its text and options: the
     CPUs this process may use (:func:`cpus_allowed`) and XLA's thread pool
-    (:func:`thread_pool`). Either changes the compiled program (XLA splits the generated
-    code by the parallelism it sees) and so, with the loop emitters, its rounding:
-    Intel, ``srupf-gm``, 30 particles, 150 keyframes gave 0.0234 m compiled with one
-    thread (``--threads 1``, or pinned with ``taskset -c 0``) and 0.0259 m with two. JAX's
-    cache key does not include them, so :mod:`jaxslam.cache` adds this string to it."""
+    (:func:`thread_pool`). Either can change the compiled program (XLA splits the
+    generated code by the parallelism it sees) and so, with the loop emitters, its
+    rounding: under XLA's own split, Intel, ``srupf-gm``, 30 particles, 150 keyframes
+    gave one run compiled with one thread (``--threads 1``, or pinned with ``taskset -c
+    0``) and another with two. jaxslam's grid programs now fix the split
+    (:data:`OPTIONS`), but programs compiled with other options (the landmark filters,
+    a user's own) do not. JAX's cache key includes neither, so :mod:`jaxslam.cache`
+    adds this string to it."""
     pool = thread_pool()
     return f"cpus={cpus_allowed()};threads={'all' if pool is None else pool}"
 
