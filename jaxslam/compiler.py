@@ -34,7 +34,9 @@ options:
   Compilation (5 programs, two threads): 15-16 s with 1 or 2 parts, 11.5-12.5 s with
   8 or 16, 12-13 s with XLA's 32; the filter loop is the same within this machine's
   noise. Killian's two-thread ``jaxslam run``, seed 0, now gives 0.191 m, the
-  pinned run's number to the last digit. Code for another CPU model (other vector
+  pinned run's number to the last digit. (The landmark filters' programs, with XLA's
+  defaults, gave the same bits on one and two threads: Victoria Park, ERB, 1000
+  particles, 600 scans.) Code for another CPU model (other vector
   instructions) can still differ, so runs are reproducible on one kind of machine,
   not bit for bit across machines.
 
