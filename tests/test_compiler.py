@@ -174,10 +174,10 @@ def test_grid_runs_do_not_depend_on_xla_threads(tmp_path):
     program's generated code by its thread pool, and with the loop emitters the split
     changes the rounding (:mod:`jaxslam.compiler`); the fixed split count of
     :data:`jaxslam.compiler.OPTIONS` keeps that out. This segment (Intel, 30 particles,
-    150 keyframes, where the loop-closure search starts to search) is one where it
-    shows: with ``XLA_FLAGS=--xla_cpu_parallel_codegen_split_count=32`` (XLA's split on
-    two threads) this test fails on the 2-core CI machine (checked when it was written,
-    jax 0.10.2); 40 keyframes, or 16 particles and 100, gave the same bits either way."""
+    150 keyframes) is one where it shows: with
+    ``XLA_FLAGS=--xla_cpu_parallel_codegen_split_count=32`` (XLA's split on two threads)
+    this test fails on the project's 2-core machine (checked when it was written, jax
+    0.10.2); 40 keyframes, or 16 particles and 100, gave the same bits either way."""
     from jaxslam.datasets.carmen import load_dataset_log
     from jaxslam.datasets.paths import DatasetNotFoundError
 
