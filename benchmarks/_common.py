@@ -21,17 +21,25 @@ def machine_info() -> dict[str, Any]:
     from jaxslam.compiler import cpus_allowed
 
     cpu = platform.processor() or platform.machine()
+    fields: dict[str, str] = {}
     try:
         with open("/proc/cpuinfo") as fh:
             for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
+                if not line.strip():
+                    break  # the first processor's block
+                key, _, value = line.partition(":")
+                fields[key.strip()] = value.strip()
     except OSError:
         pass
+    cpu = fields.get("model name", cpu)
+    # Two "AMD EPYC" machines may be different CPUs whose vector instructions give XLA's
+    # code other rounding, and so chaotic runs other results (README, suite v5.6).
+    flags = set(fields.get("flags", "").split())
     return {
         "cpu": cpu,
         "cores": os.cpu_count(),
+        "cpu_family_model": f"{fields.get('cpu family', '?')}/{fields.get('model', '?')}" if fields else None,
+        "vector_extensions": sorted(flags & {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl"}),
         # the CPUs this process (and the workers it starts) may use: XLA compiles
         # another program for another count (jaxslam.compiler.cpus_allowed)
         "cpus_allowed": cpus_allowed(),
