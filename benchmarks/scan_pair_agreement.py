@@ -33,6 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import print_table, write_json  # noqa: E402
 
+from jaxslam.datasets.geometry import se2_between, wrap_angle  # noqa: E402
+
 GATES = (1.0, 0.5, 0.3, 0.2)
 
 
@@ -78,7 +80,6 @@ def icp(reference: np.ndarray, current: np.ndarray, start: np.ndarray, iteration
 
 def log_pairs(name: str, stride: int) -> list[dict]:
     from jaxslam.datasets.carmen import load_carmen
-    from jaxslam.datasets.geometry import se2_between
     from jaxslam.datasets.perturb import load_reference_log
 
     reference = load_reference_log(name)
@@ -95,7 +96,7 @@ def log_pairs(name: str, stride: int) -> list[dict]:
         if min(a.shape[0], b.shape[0]) < 10:
             continue
         pose, inliers, rms = icp(a, b, relative)
-        turn = (pose[2] - relative[2] + np.pi) % (2 * np.pi) - np.pi
+        turn = wrap_angle(pose[2] - relative[2])
         rows.append({"scan": i, "rms_m": rms, "inliers": inliers / b.shape[0],
                      "icp_turn_deg": float(np.degrees(turn)), "icp_shift_m": float(np.hypot(*(pose[:2] - relative[:2])))})
     return rows
