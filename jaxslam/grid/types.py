@@ -159,7 +159,9 @@ class GridSlamParams(NamedTuple):
     its correction refused (1: never; see :mod:`jaxslam.grid.closure`). Before the
     watch ends, a closure is undone as soon as that share averages over
     ``closure_undo_fast`` over at least two scans and a fifth of the watch (1: never,
-    the default; measured in :mod:`jaxslam.grid.closure`).
+    the default; measured in :mod:`jaxslam.grid.closure`). While a closure is watched
+    the search does not start (``closure_nest`` 0, the default), so that every closure
+    is judged on its own scans; 1 lets a closure be taken inside another's watch.
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -205,6 +207,7 @@ class GridSlamParams(NamedTuple):
     closure_watch: Array
     closure_undo: Array
     closure_undo_fast: Array
+    closure_nest: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -316,6 +319,7 @@ def default_params(
         "closure_watch": 5.0,
         "closure_undo": 0.11,
         "closure_undo_fast": 1.0,
+        "closure_nest": 0.0,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,

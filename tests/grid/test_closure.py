@@ -364,6 +364,34 @@ def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(s
         assert float(kept[5][8]) == 1.0
 
 
+def test_no_closure_is_taken_while_another_is_watched(sim, tracked):
+    """Scan 3 guessed 1.6 m and 5 deg off, 2 m of odometry after a closure elsewhere (a
+    0.3 m correction, watched over ``closure_watch`` 10 m here, no conflict so far): with
+    ``closure_nest`` 0 (the default) the search does not start, the local match stays
+    and the watch goes on, so that the first closure is judged on its own scans. With
+    ``closure_nest`` 1 the far-off scan closes (a closure inside the watch, which would
+    restart it); once the watch has ended (10.5 m, the closure kept) it closes with 0 too."""
+    track, state, scans, params, config = tracked
+    assert float(params.closure_nest) == 0.0
+    at_once = params._replace(closure_confirm=np.float64(1.0), closure_drift=np.float64(10.0),
+                              closure_watch=np.float64(10.0))
+    other = np.array([0.3, 0.0, 0.0])
+    with jax.enable_x64(True):
+        true_step, wrong, _ = _closed_off(sim, state)
+        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3],
+                      at_once._replace(closure_trigger=np.float64(0.0)), config)
+        blocked = track(_watched(state, other, 2.0, 0.0, 2.0), wrong, scans[3], at_once, config)
+        nested = track(_watched(state, other, 2.0, 0.0, 2.0), wrong, scans[3],
+                       at_once._replace(closure_nest=np.float64(1.0)), config)
+        after = track(_watched(state, other, 10.5, 0.0, 10.0), wrong, scans[3], at_once, config)
+    assert not bool(blocked[3]) and float(blocked[5][8]) == 1.0
+    np.testing.assert_array_equal(np.asarray(blocked[0]), np.asarray(plain[0]))
+    assert not _on_true_pose(true_step, plain)
+    for closed in (nested, after):
+        assert bool(closed[3]) and _on_true_pose(true_step, closed), closed[0]
+        assert float(closed[5][8]) == 1.0 and float(closed[5][4]) == 0.0
+
+
 def test_the_path_takes_back_an_undone_closure_on_the_scans_it_moved():
     """A closure at scan 20 moved the tracking's frame by ``A`` (x = A (+) x_local); the
     undo at scan 27 (7 scans since the closure) returned to the frame before it. The
