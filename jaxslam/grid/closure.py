@@ -178,9 +178,9 @@ by its own watch at 13526, and taken again at 13545); held back, the first is un
 at 13458, the next closure (13479) is false and still watched when the log ends
 (largest relation 2.08 -> 2.15 m, relations over 0.5 m 7 -> 25, mean 0.034 -> 0.044
 m). The other eighteen Intel seeds, perturbed Intel-high 0-4, MIT Killian 1-4, the
-perturbed campus (first 800 keyframes) 0-4, the infinite corridor and Seattle (high)
-0-2 ran the same to the last digit both ways: no closure was taken inside a watch
-there. Kept for the rule, and for the largest error: over the twenty Intel seeds the
+perturbed campus (first 800 keyframes) 0-4, the infinite corridor, Seattle, FHW and
+Belgioioso (high) 0-2 and raw FR079 0-4 ran the same to the last digit both ways: no
+closure was taken inside a watch there. Kept for the rule, and for the largest error: over the twenty Intel seeds the
 largest relation is 2.15 m against 4.25 m, the worst seed's mean 0.047 m both ways.
 
 Reach (session 44): ``closure_radius`` 6 m instead of 4 m, a program change measured
