@@ -32,7 +32,9 @@ would hide them; :func:`jaxslam.grid.closure.put_back` undoes that).
         --name closure_diagnostics_killian
 
 Prints the table, writes ``benchmarks/results/NAME.json`` and ``NAME.png`` (the
-share after the closure against jump / travelled, by verdict).
+share after the closure against jump / travelled, by verdict). With ``--log``, a second
+table gives each run's relations error with and without the end's judgment of a closure
+still watched when the log ended (``end_judgment``; :func:`jaxslam.grid.closure.judge_at_end`).
 """
 
 from __future__ import annotations
@@ -76,9 +78,10 @@ def closures(path: str, relations=None) -> list[dict]:
     closed = np.flatnonzero(run["info_track_closed"]) + 1  # info[i] is scan i + 1
     undo_of: dict[int, int] = {}
     if "info_track_undo" in run.files:  # since session 43: undos apart, and the path as tracked
-        from jaxslam.grid.closure import put_back
+        from jaxslam.grid.closure import put_back, reported_undo
 
-        undo = np.asarray(run["info_track_undo"], np.float64).reshape(-1, 4)
+        end = run["info_track_undo_end"] if "info_track_undo_end" in run.files else None
+        undo = reported_undo(run["info_track_undo"], end)  # the last row: the end's judgment (session 50)
         undone_at = np.flatnonzero(undo[:, 0] > 0) + 1
         undo_of = {int(b - round(undo[b - 1, 0])): int(b) for b in undone_at}
         closed = np.setdiff1d(closed, undone_at)
@@ -143,6 +146,29 @@ def plot(rows: list[dict], out: Path, title: str) -> None:
     plt.close(fig)
 
 
+def end_judgment(path: str, relations) -> dict:
+    """One run: the relations error of the reported path, and of the same path without
+    the end's judgment of a closure still watched when the log ended (session 50,
+    :func:`jaxslam.grid.closure.judge_at_end`; ``info_track_undo_end``), so that what the
+    judgment changed is measured on the run itself."""
+    from jaxslam.grid.closure import put_back
+    from jaxslam.metrics.relations import relation_errors
+
+    run = np.load(path)
+    end = np.asarray(run["info_track_undo_end"], np.float64) if "info_track_undo_end" in run.files else np.zeros(4)
+    poses = run["trajectory"]
+    rows = np.zeros((poses.shape[0], 4))
+    rows[-1] = end
+    row = {"run": Path(path).stem, "closures": int(np.sum(run["info_track_closed"])),
+           "undone_at_end_scans": int(round(end[0]))}
+    for key, trajectory in (("", poses), ("without_end_", put_back(poses, np.arange(poses.shape[0]), rows))):
+        errors = relation_errors(relations, run["scan_times"], trajectory)
+        row[f"{key}mean_m"] = float(np.nanmean(errors.trans))
+        row[f"{key}max_m"] = float(np.nanmax(errors.trans))
+        row[f"{key}over_0.5"] = int(np.sum(errors.matched & (errors.trans > 0.5)))
+    return row
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", action="append", required=True, help="glob of saved runs (.npz); repeatable")
@@ -169,8 +195,12 @@ def main(argv=None) -> None:
             summary[verdict] = {"count": int(after.size), "conflict_after_quartiles": np.percentile(after, [25, 50, 75]).tolist(),
                                 "over_0.15": int(np.sum(after > 0.15)), "over_0.10": int(np.sum(after > 0.10))}
     print(summary)
+    ends = [end_judgment(p, relations) for p in paths] if relations is not None else []
+    if ends:
+        print_table(ends, ["run", "closures", "undone_at_end_scans", "mean_m", "max_m", "over_0.5",
+                           "without_end_mean_m", "without_end_max_m", "without_end_over_0.5"])
     out = write_json(args.name, {"runs": paths, "log": args.log, "closures": rows,
-                                 "summary": summary})
+                                 "summary": summary, "end_judgment": ends})
     plot(rows, RESULTS / f"{args.name}.png", f"{args.log or 'runs'}: loop closures ({len(paths)} runs)")
     print(f"wrote {out} and {RESULTS / (args.name + '.png')}")
 

@@ -227,11 +227,13 @@ def score_as_tracked(entry: dict, data, times, kf_i, kf_p, odom) -> dict[str, An
     (:func:`jaxslam.grid.closure.put_back`)."""
     if "info_track_undo" not in data.files:
         return {}
-    undo = np.asarray(data["info_track_undo"], np.float64).reshape(-1, 4)
-    record: dict[str, Any] = {"closures_undone": int(np.sum(undo[:, 0] > 0))}
+    from jaxslam.grid.closure import put_back, reported_undo
+
+    end = data["info_track_undo_end"] if "info_track_undo_end" in data.files else None
+    undo = reported_undo(data["info_track_undo"], end)  # with the end's judgment (since session 50)
+    record: dict[str, Any] = {"closures_undone": int(np.sum(undo[:, 0] > 0)), "undone_at_end": bool(undo[-1, 0] > 0)}
     if not record["closures_undone"]:
         return record
-    from jaxslam.grid.closure import put_back
 
     tracked = put_back(data["trajectory"], np.arange(data["trajectory"].shape[0]), undo)
     tracked_kf = put_back(kf_p, kf_i, undo)

@@ -38,7 +38,7 @@ from jaxslam.grid.types import (
     default_keyframes,
     default_params,
 )
-from jaxslam.grid.closure import take_back
+from jaxslam.grid.closure import judge_at_end, reported_undo, take_back
 from jaxslam.grid.range_rule import apply_range_rule
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
@@ -140,9 +140,11 @@ class GridSlamResult:
         closed = np.flatnonzero(np.asarray(self.info.get("track_closed", np.zeros(0, bool)), bool)) + 1
         undo = np.asarray(self.info.get("track_undo", np.zeros((0, 4))), np.float64).reshape(-1, 4)
         undone = np.flatnonzero(undo[:, 0] > 0) + 1
+        end = np.asarray(self.info.get("track_undo_end", np.zeros(4)), np.float64).reshape(4)
         return {"closures": int(closed.shape[0]), "closure_scans": closed[:100].tolist(),
                 "closures_undone": int(undone.shape[0]), "undo_scans": undone[:100].tolist(),
-                "undone_scans_moved": int(np.sum(undo[:, 0]))}
+                "undone_scans_moved": int(np.sum(undo[:, 0]) + end[0]),
+                "closure_undone_at_end": bool(end[0] > 0)}
 
 
 def _dataset_name(log_or_name) -> str:
@@ -347,12 +349,16 @@ def run_grid_slam(
     flags = np.asarray(ys["keyframe"], bool)
     kf_rows = np.flatnonzero(flags)
     kf_poses = best_trajectory(np.asarray(ys["poses"])[kf_rows], np.asarray(ys["ancestors"])[kf_rows], best)
-    keyframes, trajectory = scan_trajectory(odom[0], flags, kf_poses, ys["motion"], ys["track_undo"])
-    kf_poses = take_back(np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0), keyframes, ys["track_undo"])
+    # a closure still watched at the end is judged on the scans it had (the undo row after the last scan's)
+    end_undo = judge_at_end(state.closure_memory, prm)
+    undo = reported_undo(ys["track_undo"], end_undo)
+    keyframes, trajectory = scan_trajectory(odom[0], flags, kf_poses, ys["motion"], undo)
+    kf_poses = take_back(np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0), keyframes, undo)
     cells, origin = stitch(state.maps.pool, state.maps.tables[best], state.maps.corner, cfg.layout)
     grid = cells.astype(np.float32) * unit
     info = {k: np.asarray(v)[kf_rows] for k, v in ys.items() if k not in PER_SCAN_KEYS}
     info.update({k: np.asarray(ys[k]) for k in PER_SCAN_KEYS if k not in ("poses", "ancestors")})
+    info["track_undo_end"] = end_undo
     return GridSlamResult(
         algorithm=algorithm,
         dataset=name,

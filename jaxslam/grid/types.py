@@ -162,6 +162,9 @@ class GridSlamParams(NamedTuple):
     the default; measured in :mod:`jaxslam.grid.closure`). While a closure is watched
     the search does not start (``closure_nest`` 0, the default), so that every closure
     is judged on its own scans; 1 lets a closure be taken inside another's watch.
+    A closure still watched when the run ends is judged in the path reported on the
+    scans it had: undone where their share averages over ``closure_undo_end`` (at least
+    two scans; 1: never; :func:`jaxslam.grid.closure.judge_at_end`).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.
@@ -208,6 +211,7 @@ class GridSlamParams(NamedTuple):
     closure_undo: Array
     closure_undo_fast: Array
     closure_nest: Array
+    closure_undo_end: Array
     likelihood_floor: Array
     weight_gain: Array
     resample_threshold: Array
@@ -320,6 +324,7 @@ def default_params(
         "closure_undo": 0.11,
         "closure_undo_fast": 1.0,
         "closure_nest": 0.0,
+        "closure_undo_end": 0.2,
         "likelihood_floor": np.exp(-4.0),
         "weight_gain": None,
         "resample_threshold": 0.5,

@@ -12,9 +12,11 @@ import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.grid.closure import (
-    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, put_back, take_back, window_half,
+    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, judge_at_end, put_back,
+    reported_undo, take_back, window_half,
 )
 from jaxslam.grid.map import GridSpec, dense_reader
+from jaxslam.grid.types import default_params
 from jaxslam.grid.tracking import track as _track
 from tests.grid.sim_state import state_and_scans
 
@@ -419,3 +421,40 @@ def test_the_path_takes_back_an_undone_closure_on_the_scans_it_moved():
     np.testing.assert_allclose(take_back(reported[keyframes], keyframes, undo), true[keyframes], atol=1e-12)
     # the inverse is the world-frame one (left), not a relative one
     assert not np.allclose(se2_compose(true[20:27], se2_inverse(correction)[None]), true[20:27])
+
+
+def test_a_closure_still_watched_at_the_end_is_judged_on_the_scans_it_had():
+    """The log ends 6 scans after a closure at scan 33 (of 40), inside its watch. With
+    a mean share of beams in known free space over ``closure_undo_end`` on those scans
+    the end's row ``[7, A]`` takes the closure back on scans 33..39 (the closure's own
+    scan and the 6 watched); with a low mean, fewer than two scans, no watch open (0),
+    an undone closure (-1) or the parameter at 1, the row is zeros and the path stays."""
+    params = default_params(np.linspace(-1.5, 1.5, 10))
+    assert float(params.closure_undo_end) == pytest.approx(0.2)
+    rng = np.random.default_rng(5)
+    steps = np.column_stack([rng.uniform(0.05, 0.2, 40), rng.normal(0, 0.02, 40), rng.normal(0, 0.05, 40)])
+    true = np.zeros((40, 3))
+    for s in range(1, 40):
+        true[s] = se2_compose(true[s - 1][None], steps[s][None])[0]
+    correction = np.array([-1.0, 2.5, math.radians(-9.0)])
+    reported = true.copy()
+    reported[33:] = se2_compose(correction[None], true[33:])
+
+    def memory(mode, total, count):
+        m = np.zeros(MEMORY)
+        m[5:8], m[8], m[9], m[10] = correction, mode, total, count
+        return m
+
+    end = judge_at_end(memory(1.0, 6 * 0.3, 6.0), params)
+    np.testing.assert_allclose(end, [7.0, *correction])
+    undo = reported_undo(np.zeros((39, 4)), end)
+    assert undo.shape == (40, 4)
+    got = take_back(reported, np.arange(40), undo)
+    np.testing.assert_allclose(got, true, atol=1e-12)
+    np.testing.assert_array_equal(got[:33], reported[:33])
+    np.testing.assert_allclose(put_back(got, np.arange(40), undo), reported, atol=1e-12)
+    for kept in (memory(1.0, 6 * 0.15, 6.0), memory(1.0, 0.9, 1.0), memory(0.0, 1.8, 6.0), memory(-1.0, 1.8, 6.0)):
+        np.testing.assert_array_equal(judge_at_end(kept, params), np.zeros(4))
+    off = params._replace(closure_undo_end=np.float64(1.0))
+    np.testing.assert_array_equal(judge_at_end(memory(1.0, 6 * 0.9, 6.0), off), np.zeros(4))
+    np.testing.assert_array_equal(take_back(reported, np.arange(40), reported_undo(np.zeros((39, 4)), None)), reported)
