@@ -151,16 +151,16 @@ def end_judgment(path: str, relations) -> dict:
     the end's judgment of a closure still watched when the log ended (session 50,
     :func:`jaxslam.grid.closure.judge_at_end`; ``info_track_undo_end``), so that what the
     judgment changed is measured on the run itself."""
-    from jaxslam.grid.closure import put_back
+    from jaxslam.grid.closure import put_back, reported_undo
     from jaxslam.metrics.relations import relation_errors
 
     run = np.load(path)
-    end = np.asarray(run["info_track_undo_end"], np.float64) if "info_track_undo_end" in run.files else np.zeros(4)
     poses = run["trajectory"]
-    rows = np.zeros((poses.shape[0], 4))
-    rows[-1] = end
+    # only the end's row: put back, it leaves the path as the filter reported it before session 50
+    rows = reported_undo(np.zeros((poses.shape[0] - 1, 4)),
+                         run["info_track_undo_end"] if "info_track_undo_end" in run.files else None)
     row = {"run": Path(path).stem, "closures": int(np.sum(run["info_track_closed"])),
-           "undone_at_end_scans": int(round(end[0]))}
+           "undone_at_end_scans": int(round(rows[-1, 0]))}
     for key, trajectory in (("", poses), ("without_end_", put_back(poses, np.arange(poses.shape[0]), rows))):
         errors = relation_errors(relations, run["scan_times"], trajectory)
         row[f"{key}mean_m"] = float(np.nanmean(errors.trans))

@@ -136,15 +136,16 @@ class GridSlamResult:
 
     def closure_summary(self) -> dict[str, Any]:
         """How often the loop-closure search replaced the tracking's match or undid a
-        closure (:mod:`jaxslam.grid.closure`) and at which scans (the first 100 of each)."""
+        closure (:mod:`jaxslam.grid.closure`) and at which scans (the first 100 of each); a
+        closure the end's judgment took back (:func:`jaxslam.grid.closure.judge_at_end`)
+        counts as undone at scan ``S``, and ``closure_undone_at_end`` says so."""
         closed = np.flatnonzero(np.asarray(self.info.get("track_closed", np.zeros(0, bool)), bool)) + 1
-        undo = np.asarray(self.info.get("track_undo", np.zeros((0, 4))), np.float64).reshape(-1, 4)
+        # the rows the reported path took back: every undo, and the end's judgment last (scan S)
+        undo = reported_undo(self.info.get("track_undo", np.zeros((0, 4))), self.info.get("track_undo_end"))
         undone = np.flatnonzero(undo[:, 0] > 0) + 1
-        end = np.asarray(self.info.get("track_undo_end", np.zeros(4)), np.float64).reshape(4)
         return {"closures": int(closed.shape[0]), "closure_scans": closed[:100].tolist(),
                 "closures_undone": int(undone.shape[0]), "undo_scans": undone[:100].tolist(),
-                "undone_scans_moved": int(np.sum(undo[:, 0]) + end[0]),
-                "closure_undone_at_end": bool(end[0] > 0)}
+                "undone_scans_moved": int(np.sum(undo[:, 0])), "closure_undone_at_end": bool(undo[-1, 0] > 0)}
 
 
 def _dataset_name(log_or_name) -> str:
