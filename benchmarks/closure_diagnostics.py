@@ -78,10 +78,10 @@ def closures(path: str, relations=None) -> list[dict]:
     closed = np.flatnonzero(run["info_track_closed"]) + 1  # info[i] is scan i + 1
     undo_of: dict[int, int] = {}
     if "info_track_undo" in run.files:  # since session 43: undos apart, and the path as tracked
-        from jaxslam.grid.closure import put_back, reported_undo
+        from grid_common import saved_undo
+        from jaxslam.grid.closure import put_back
 
-        end = run["info_track_undo_end"] if "info_track_undo_end" in run.files else None
-        undo = reported_undo(run["info_track_undo"], end)  # the last row: the end's judgment (session 50)
+        undo = saved_undo(run)  # the last row: the end's judgment (session 50)
         undone_at = np.flatnonzero(undo[:, 0] > 0) + 1
         undo_of = {int(b - round(undo[b - 1, 0])): int(b) for b in undone_at}
         closed = np.setdiff1d(closed, undone_at)
@@ -151,14 +151,14 @@ def end_judgment(path: str, relations) -> dict:
     the end's judgment of a closure still watched when the log ended (session 50,
     :func:`jaxslam.grid.closure.judge_at_end`; ``info_track_undo_end``), so that what the
     judgment changed is measured on the run itself."""
-    from jaxslam.grid.closure import put_back, reported_undo
+    from grid_common import saved_undo
+    from jaxslam.grid.closure import put_back
     from jaxslam.metrics.relations import relation_errors
 
     run = np.load(path)
     poses = run["trajectory"]
     # only the end's row: put back, it leaves the path as the filter reported it before session 50
-    rows = reported_undo(np.zeros((poses.shape[0] - 1, 4)),
-                         run["info_track_undo_end"] if "info_track_undo_end" in run.files else None)
+    rows = saved_undo(run, end_only=True)
     row = {"run": Path(path).stem, "closures": int(np.sum(run["info_track_closed"])),
            "undone_at_end_scans": int(round(rows[-1, 0]))}
     for key, trajectory in (("", poses), ("without_end_", put_back(poses, np.arange(poses.shape[0]), rows))):

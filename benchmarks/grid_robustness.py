@@ -227,10 +227,10 @@ def score_as_tracked(entry: dict, data, times, kf_i, kf_p, odom) -> dict[str, An
     (:func:`jaxslam.grid.closure.put_back`)."""
     if "info_track_undo" not in data.files:
         return {}
-    from jaxslam.grid.closure import put_back, reported_undo
+    from grid_common import saved_undo
+    from jaxslam.grid.closure import put_back
 
-    end = data["info_track_undo_end"] if "info_track_undo_end" in data.files else None
-    undo = reported_undo(data["info_track_undo"], end)  # with the end's judgment (since session 50)
+    undo = saved_undo(data)  # with the end's judgment (since session 50)
     record: dict[str, Any] = {"closures_undone": int(np.sum(undo[:, 0] > 0)), "undone_at_end": bool(undo[-1, 0] > 0)}
     if not record["closures_undone"]:
         return record
