@@ -27,8 +27,9 @@ KEYFRAMES = dict(linear_update=0.5, angular_update=0.3, resample_threshold=1.0, 
 def setup():
     log = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.3, num_beams=91, seed=2)
     # The loop-closure search off: a 36-scan window closes no loop, and compiled into the
-    # gradient programs it costs these tests about 40 s. (test_calibration_takes_the_runs_
-    # range_rule calibrates with the default configuration, search included.)
+    # gradient programs it costs these tests about 40 s. (The slow
+    # test_calibrate_srupf_then_run_with_params calibrates with the default
+    # configuration, search included.)
     reference = run_grid_slam(G.window_log(log, SCANS), "srupf-gm", particles=PARTICLES, seed=0, progress=False,
                               params=KEYFRAMES, config={"match_iterations": 6, "closure": False})
     params = default_params(log.angles, log.laser_offset, **KEYFRAMES)
@@ -151,9 +152,15 @@ def test_calibrate_srupf_then_run_with_params(tmp_path):
     assert summary["overrides"] == payload["params_after"]
 
 
-def test_calibration_takes_the_runs_range_rule():
+def test_calibration_takes_the_runs_range_rule(monkeypatch):
     """On a far-field log the fitted parameters and the reference layout use the ranges
-    the run on the whole log would use (jaxslam.grid.range_rule), not the 20 m default."""
+    the run on the whole log would use (jaxslam.grid.range_rule), not the 20 m default.
+
+    The gradient program is replaced by one with zero gradients: what is checked here
+    is what the calibration builds around it, and its own compilation (over
+    three minutes on a 2-core machine) is checked by
+    ``test_gradients_are_finite_and_reach_every_level`` above, and with the default
+    configuration by the slow ``test_calibrate_srupf_then_run_with_params``."""
     import dataclasses
 
     from jaxslam.grid.range_rule import choose_range
@@ -162,8 +169,22 @@ def test_calibration_takes_the_runs_range_rule():
     far = dataclasses.replace(base, ranges=base.ranges * 6.0)  # readings stretched: a far field
     want = choose_range(far.ranges, far.valid, far.max_range)
     assert want["far_field"]
+    seen = {}
+
+    def programs(config, names, samples):
+        seen["config"] = config
+
+        @jax.jit
+        def gradient(keys, theta, params, inputs):
+            return jnp.zeros(keys.shape[0], theta.dtype), jnp.zeros((keys.shape[0], theta.shape[0]), theta.dtype)
+
+        return gradient, None
+
+    monkeypatch.setattr(G, "programs", programs)
     result = G.calibrate_grid(far, particles=2, filters=1, steps=1, window=24, samples=1, validation=0.0,
                               params=KEYFRAMES)
     assert float(result.params.usable_range) == want["usable_range"]
     assert float(result.params.score_range) == want["score_range"]
-    assert result.config.window_range == 10.0 * np.ceil(want["usable_range"] / 10.0)
+    window_range = 10.0 * np.ceil(want["usable_range"] / 10.0)
+    assert result.config.window_range == window_range and seen["config"].window_range == window_range
+    assert seen["config"].window_range > 20.0  # not the default's
