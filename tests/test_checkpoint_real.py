@@ -69,6 +69,7 @@ def uninterrupted(sequence):
     return _run(sequence)
 
 
+@pytest.mark.long
 def test_interrupted_and_resumed_run_equals_uninterrupted_bit_for_bit(sequence, uninterrupted, tmp_path):
     path = tmp_path / "erb.ckpt.npz"
 

@@ -101,6 +101,7 @@ def test_datasets_finds_shipped_data(capsys):
     assert "found" in line
 
 
+@pytest.mark.long
 def test_run_simulated_landmarks_writes_outputs_then_evaluate_and_plot(tmp_path, capsys):
     out = tmp_path / "run"
     assert run_cli("run", "--out", str(out), "--particles", "8", "--max-steps", "60", "--no-progress",
@@ -173,6 +174,7 @@ def test_installed_command_is_the_quick_exit_entry_point():
     assert script.value == "jaxslam.cli:console_main"
 
 
+@pytest.mark.long
 def test_interrupted_run_resumes_to_identical_outputs(tmp_path, monkeypatch, capsys):
     from jaxslam import checkpoint as ckpt
 
@@ -203,6 +205,7 @@ def test_interrupted_run_resumes_to_identical_outputs(tmp_path, monkeypatch, cap
     assert "no checkpoint" in capsys.readouterr().err
 
 
+@pytest.mark.long
 def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypatch):
     from jaxslam import checkpoint as ckpt
 
@@ -231,6 +234,7 @@ def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypa
     assert json.loads((interrupted / "run.json").read_text())["keyframes"] == {"linear": 0.4}
 
 
+@pytest.mark.long
 def test_loop_closure_is_srupf_gms_default_can_be_turned_off_and_is_for_laser_data_only(capsys, tmp_path):
     out = tmp_path / "closure"
     assert run_cli("run", "--out", str(out), "--algorithm", "srupf-gm", "--particles", "2", "--max-steps", "6",

@@ -166,6 +166,7 @@ def test_results_do_not_depend_on_xla_threads():
     assert one["result"] == two["result"]
 
 
+@pytest.mark.long
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2 if hasattr(os, "sched_getaffinity") else True,
                     reason="needs two CPUs: XLA splits its code by the thread pool only with more than one")
 def test_grid_runs_do_not_depend_on_xla_threads(tmp_path):

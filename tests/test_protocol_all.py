@@ -72,6 +72,7 @@ def landmark_sequence():
     return simulate_landmarks(seed=4, **LANDMARK_SIM)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("algorithm", ["rb-upf", "erb-upf"])
 def test_landmark_cli_path_compiles_once_and_uses_the_run_keys(landmark_sequence, algorithm):
     """Two runs with other Params and another seed reuse the compiled chunk runner of
@@ -124,6 +125,7 @@ def sim_log():
 GRID_STEPS = {"gmapping": gmapping.step, "srupf-gm": srupf.step}
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("algorithm", ["gmapping", "srupf-gm"])
 def test_grid_cli_path_compiles_once_per_config(sim_log, algorithm):
     """Two runs with other Params (noise, thresholds) and another seed reuse the

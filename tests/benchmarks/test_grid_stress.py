@@ -33,6 +33,7 @@ def test_wilson_matches_scipy(failures, runs):
     assert lo == pytest.approx(ci.low, abs=2e-4) and hi == pytest.approx(ci.high, abs=2e-4)
 
 
+@pytest.mark.long
 def test_resume_reproduces_the_base_run_and_varies_only_the_stretch(tmp_path):
     log = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.6, num_beams=91, seed=2)
     assert log.num_scans > 150
@@ -49,6 +50,7 @@ def test_resume_reproduces_the_base_run_and_varies_only_the_stretch(tmp_path):
         assert not np.array_equal(other.trajectory[101:], base.trajectory[101:])
 
 
+@pytest.mark.long
 def test_own_base_is_the_variants_own_history(tmp_path):
     """--own-base: a variant's base run uses its parameters from the first scan, and the
     run resumed from it with the base seed is the variant's whole run."""

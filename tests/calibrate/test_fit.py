@@ -68,6 +68,7 @@ def test_validation_split_and_candidates():
 SIM = dict(num_steps=24, max_observations=16, num_landmarks=30)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("start_factor, kept", [(1.0, 0), (3.0, 1)])
 def test_validation_keeps_the_better_of_start_and_step(start_factor, kept):
     """One Adam step of size 1 on the log levels moves both levels by a factor of e.
@@ -93,6 +94,7 @@ def test_validation_keeps_the_better_of_start_and_step(start_factor, kept):
     assert np.asarray(result.validation.guard_scores).shape == (2, 6)
 
 
+@pytest.mark.long
 def test_validation_scores_with_the_weights_of_the_filter_to_be_run():
     """validation_score runs filters of the asked particle count and weights (the
     gated filter that ``jaxslam run`` runs by default) and averages the held-out

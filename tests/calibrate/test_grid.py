@@ -48,6 +48,7 @@ def test_log_noise_round_trip():
     assert G.trajectory_columns(params, names) == ("q_linear", "match_noise[0]", "match_noise[1]", "match_noise[2]")
 
 
+@pytest.mark.long
 def test_forward_pass_is_the_filter_bit_for_bit(setup):
     """The filter state carried by the differentiable run is srupf.scan_run's, bit for
     bit (poses, factors, weights, maps), and the differentiable copy of the pose factors
@@ -122,6 +123,7 @@ def test_predictive_likelihood_matches_a_direct_computation(setup):
         assert float(total) == pytest.approx(expected, rel=1e-9, abs=1e-9)
 
 
+@pytest.mark.long
 def test_gradients_are_finite_and_reach_every_level(setup):
     log, config, params, inputs = setup
     names = G.GRID_NOISE_NAMES
@@ -152,6 +154,7 @@ def test_calibrate_srupf_then_run_with_params(tmp_path):
     assert summary["overrides"] == payload["params_after"]
 
 
+@pytest.mark.long
 def test_calibration_takes_the_runs_range_rule(monkeypatch):
     """On a far-field log the fitted parameters and the reference layout use the ranges
     the run on the whole log would use (jaxslam.grid.range_rule), not the 20 m default.

@@ -78,6 +78,7 @@ def test_grid_slam_on_bag_is_bit_identical(reference, bags):
     assert np.count_nonzero(reference.map_log_odds) > 1000  # the map is not empty
 
 
+@pytest.mark.long
 def test_cli_run_on_bag_is_bit_identical(reference, bags, tmp_path, capsys):
     from jaxslam import cli
     from jaxslam.metrics.trajectory_io import read_tum

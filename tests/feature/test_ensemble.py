@@ -16,7 +16,8 @@ SIM = dict(num_steps=30, max_observations=16, max_range=12.0, speed=6.0, num_lan
 CONFIG = dict(capacity=64, local_size=32)
 
 
-@pytest.mark.parametrize("algorithm", ["erb-upf", pytest.param("rb-upf", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("algorithm", [pytest.param("erb-upf", marks=pytest.mark.long),
+                                       pytest.param("rb-upf", marks=pytest.mark.slow)])
 def test_members_equal_single_seed_runs(algorithm):
     seq = simulate(seed=3, **SIM)
     seeds = (0, 5, 11)
@@ -34,6 +35,7 @@ def test_members_equal_single_seed_runs(algorithm):
     assert not np.array_equal(result.trajectory[0], result.trajectory[1])
 
 
+@pytest.mark.long
 def test_params_sweep_does_not_recompile():
     seq = simulate(seed=3, **SIM)
     ensemble.run_landmark_ensemble(seq, "erb-upf", particles=12, seeds=(0, 1, 2), config=CONFIG)

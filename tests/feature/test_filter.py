@@ -59,6 +59,7 @@ def sim_runs(request):
     return runs
 
 
+@pytest.mark.long
 def test_nees_of_erb_closer_to_chi_square_than_rb(sim_runs):
     score = {}
     for proposal, runs in sim_runs.items():

@@ -52,6 +52,7 @@ def _step_states(width_extra: int):
     return state, infos
 
 
+@pytest.mark.long
 def test_padding_slots_change_nothing():
     """Width 6 (no split) and 14 (every real observation in the first half: the
     half-width branch) give the same particles."""
@@ -65,6 +66,7 @@ def test_padding_slots_change_nothing():
         assert [int(i.association_disagreement) for i in infos] == [int(i.association_disagreement) for i in ref_infos]
 
 
+@pytest.mark.long
 def test_diagnostics(ensemble):
     seq, ens = ensemble
     info = {name: value[0] for name, value in ens.info.items()}

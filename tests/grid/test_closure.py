@@ -115,6 +115,7 @@ def tracked(sim):
     return track, state, scans, params, dataclasses.replace(config, closure=True)
 
 
+@pytest.mark.long
 def test_a_guess_metres_off_is_closed_onto_the_map(sim, tracked):
     """The odometry puts scan 3 1.6 m and 5 deg off (beyond the hill climb's reach):
     the local match scores under the trigger, the search finds the true pose and

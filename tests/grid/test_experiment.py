@@ -8,6 +8,7 @@ from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.grid.experiment import run_grid_slam
 
 
+@pytest.mark.long
 def test_run_grid_slam_on_simulation():
     log = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.6, num_beams=91, seed=2)
     result = run_grid_slam(log, "srupf-gm", particles=4, seed=0, progress=False, linear_update=0.5,
@@ -75,6 +76,7 @@ def test_grid_programs_compiled_with_jaxslam_options_equal_xla_defaults(monkeypa
     np.testing.assert_array_equal(ours.info["ess"], xla.info["ess"])
 
 
+@pytest.mark.long
 def test_full_intel_float32_run_ends_without_nan():
     """The whole Intel log (911 keyframes) in float32: nothing in the final state is NaN."""
     import jax

@@ -220,6 +220,7 @@ def _box_of(layout):
     return (x0, y0, x0 + (layout.table_width - 1) * tm, y0 + (layout.table_height - 1) * tm)
 
 
+@pytest.mark.long
 def test_growing_run_equals_run_with_large_layout(sim_log, growing_run):
     """A run that starts with a small pool and table (and grows both) gives the same
     trajectory and map as one that starts large enough."""
@@ -236,6 +237,7 @@ def test_growing_run_equals_run_with_large_layout(sim_log, growing_run):
     assert growing_run.origin == large.origin
 
 
+@pytest.mark.long
 def test_run_does_not_depend_on_chunk_length(sim_log, growing_run):
     """Chunks of 8 scans with two growths, or the whole log (about 100 scans) in one
     chunk: the same trajectory and map (a step refused for want of map space holds the
@@ -248,6 +250,7 @@ def test_run_does_not_depend_on_chunk_length(sim_log, growing_run):
     np.testing.assert_array_equal(growing_run.map_log_odds, one_chunk.map_log_odds)
 
 
+@pytest.mark.long
 def test_checkpoint_of_growing_run_resumes_bit_for_bit(sim_log, growing_run, tmp_path):
     """Interrupted after the maps grew, resumed from the checkpoint (which records the
     grown layout): the same trajectory and map as the uninterrupted run."""
@@ -320,6 +323,7 @@ def test_a_table_the_path_leaves_moves_and_the_maps_equal_the_dense_ones():
     assert_same_as_dense(maps, end, grids)
 
 
+@pytest.mark.long
 def test_a_run_that_starts_off_its_table_moves_it_and_equals_a_run_that_started_there(sim_log):
     """A starting table of a good size in the wrong place (30 m off the path, as a
     drifting odometry box can be): init moves it instead of growing it, and the run

@@ -45,6 +45,7 @@ def test_threshold_and_invalid_readings():
 NO_SEARCH = {"closure": False}
 
 
+@pytest.mark.long
 def test_run_grid_slam_applies_and_reports_the_rule():
     base = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.3, num_beams=91, seed=2, max_range=60.0)
     # Readings stretched sixfold: a far field (the run is only a few keyframes long;

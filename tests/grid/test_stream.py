@@ -33,6 +33,7 @@ class _Compiles:
 _COMPILES = _Compiles()
 
 
+@pytest.mark.long
 def test_scan_by_scan_equals_batch_run(intel_segment, intel_grid_reference):
     log, ref = intel_segment, intel_grid_reference
     last = int(ref.keyframes[-1])

@@ -40,6 +40,7 @@ def _position_error(result, log):
     return np.hypot(*(result.trajectory[:, :2] - log.true_poses[: result.trajectory.shape[0], :2]).T)
 
 
+@pytest.mark.long
 def test_odometry_that_misses_turns_is_mapped_with_the_defaults(blind_turns):
     """With the defaults every scan is tracked, so the keyframe rule sees the real
     rotation and the proposals start from it; the error stays at the cell scale for
