@@ -13,6 +13,10 @@ loop-closure search replaced the tracking's match (:mod:`jaxslam.grid.closure`):
   just before ``c``; ``conflict_after``: its largest value over the three scans after
   ``c``, whose local matches start in the closure's frame (what a test at the
   candidate would measure; session 40 tried one, see :mod:`jaxslam.grid.closure`);
+* ``conflict_level``: the log's own level of that share, its mean over the scans from
+  :data:`LEVEL_FROM_M` to :data:`LEVEL_TO_M` of path before ``c`` (outdoors far higher
+  than indoors: the Freiburg campus 0.15-0.18 in the median scan of a run, MIT Killian
+  0.017), to judge ``watch_conflict`` against;
 * ``verdict``: with relations (a raw log with benchmark relations), the relations
   from a scan more than 300 scans before ``c`` to one of scans ``c .. c+60`` judge it
   by their translational errors (:func:`jaxslam.metrics.relations.relation_errors`,
@@ -64,6 +68,8 @@ WATCH_M = _default_watch()
 """Path length over which ``watch_conflict`` averages: the filter's own ``closure_watch``
 default, read from :func:`jaxslam.grid.types.default_params` so the two cannot drift apart."""
 RIGHT_M = 0.5
+LEVEL_FROM_M, LEVEL_TO_M = 200.0, 20.0
+"""Path before a closure (m) over which ``conflict_level`` averages the share."""
 """A right closure's judging relations have a median translational error under this (m)."""
 
 
@@ -109,6 +115,7 @@ def closures(path: str, relations=None) -> list[dict]:
             "conflict_before": float(conflict[c - 2]), "conflict_after": float(conflict[c:c + 3].max(initial=0.0)),
             "relation_error_m": error_m, "verdict": verdict, "undone_at": undo_of.get(int(c)),
             "watch_conflict": watched_conflict(conflict, length, int(c), undo_of.get(int(c))),
+            "conflict_level": conflict_level(conflict, length, int(c)),
         })
         last = c
     return rows
@@ -121,6 +128,15 @@ def watched_conflict(conflict: np.ndarray, length: np.ndarray, c: int, undone_at
     end = undone_at if undone_at is not None else int(np.searchsorted(length, length[c] + WATCH_M))
     end = min(end, conflict.shape[0])
     return float(conflict[c:end].mean()) if end > c else float("nan")  # conflict[i] is scan i + 1
+
+
+def conflict_level(conflict: np.ndarray, length: np.ndarray, c: int) -> float:
+    """The mean share of beams in known free space over the scans that lie
+    :data:`LEVEL_FROM_M` to :data:`LEVEL_TO_M` of path before scan ``c`` (at least one
+    scan; ``conflict[i]`` is scan ``i + 1``)."""
+    lo = int(np.searchsorted(length, length[c] - LEVEL_FROM_M))
+    hi = max(int(np.searchsorted(length, length[c] - LEVEL_TO_M)), lo + 1)
+    return float(conflict[max(lo - 1, 0):max(hi - 1, 1)].mean())
 
 
 def plot(rows: list[dict], out: Path, title: str) -> None:
@@ -172,22 +188,23 @@ def end_judgment(path: str, relations) -> dict:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", action="append", required=True, help="glob of saved runs (.npz); repeatable")
-    ap.add_argument("--log", default=None, help="raw log whose benchmark relations judge the closures")
+    ap.add_argument("--log", default=None, help="raw log whose benchmark relations judge the closures, or a "
+                    "relations file (a perturbed log's, written by grid_robustness.py into WORK/TAG/logs/)")
     ap.add_argument("--name", default="closure_diagnostics")
     args = ap.parse_args(argv)
 
     relations = None
     if args.log:
-        from jaxslam.metrics.relations import load_dataset_relations
+        from jaxslam.metrics.relations import load_dataset_relations, load_relations
 
-        relations = load_dataset_relations(args.log)
+        relations = load_relations(args.log) if Path(args.log).is_file() else load_dataset_relations(args.log)
     paths = sorted({p for pattern in args.runs for p in glob.glob(pattern)})
     if not paths:
         raise SystemExit(f"no runs match {args.runs}")
     rows = [row for p in paths for row in closures(p, relations)]
     print_table(rows, ["run", "scan", "jump_m", "turn_deg", "travelled_m", "jump_per_m", "score_before", "score",
                        "conflict_before", "conflict_after", "relation_error_m", "verdict", "undone_at",
-                       "watch_conflict"])
+                       "watch_conflict", "conflict_level"])
     summary = {}
     for verdict in ("R", "W", "?"):
         after = np.array([r["conflict_after"] for r in rows if r["verdict"] == verdict])
@@ -201,7 +218,8 @@ def main(argv=None) -> None:
                            "without_end_mean_m", "without_end_max_m", "without_end_over_0.5"])
     out = write_json(args.name, {"runs": paths, "log": args.log, "closures": rows,
                                  "summary": summary, "end_judgment": ends})
-    plot(rows, RESULTS / f"{args.name}.png", f"{args.log or 'runs'}: loop closures ({len(paths)} runs)")
+    name = Path(args.log).stem if args.log and Path(args.log).is_file() else (args.log or "runs")
+    plot(rows, RESULTS / f"{args.name}.png", f"{name}: loop closures ({len(paths)} runs)")
     print(f"wrote {out} and {RESULTS / (args.name + '.png')}")
 
 

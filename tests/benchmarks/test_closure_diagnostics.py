@@ -88,3 +88,22 @@ def test_an_undone_closure_is_judged_on_the_path_as_tracked(tmp_path):
     assert rows[1]["watch_conflict"] == pytest.approx(0.25)
     assert rows[1]["verdict"] == "W" and rows[1]["relation_error_m"] == pytest.approx(3.0)
     assert rows[1]["jump_m"] == pytest.approx(np.hypot(0.1, 3.0))
+
+
+def test_conflict_level_is_the_share_over_the_path_before_the_closure(tmp_path):
+    """A straight path, 0.1 m per scan, a closure at scan 2500 (path 249.9 m): its level
+    averages the scans 200 m to 20 m of path before it (scans about 500-2300), where the
+    share is 0.2; the scans nearer the closure (0.6) and the ones before (0.9) do not count."""
+    n = 3000
+    path = np.stack([0.1 * np.arange(n), np.zeros(n), np.zeros(n)], -1)
+    closed = np.zeros(n - 1, bool)
+    closed[2499] = True  # info[i] is scan i + 1
+    conflict = np.full(n - 1, 0.9)
+    conflict[479:2320] = 0.2  # scans 480..2320, a margin around 500..2300
+    conflict[2320:2499] = 0.6
+    run = tmp_path / "run.npz"
+    np.savez(run, trajectory=path, scan_times=np.arange(n, dtype=float), info_track_closed=closed,
+             info_track_conflict=conflict, info_track_score=np.full(n - 1, 0.5))
+    (row,) = closure_diagnostics.closures(str(run), None)
+    assert row["scan"] == 2500
+    assert row["conflict_level"] == pytest.approx(0.2)
