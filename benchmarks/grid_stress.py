@@ -3,7 +3,7 @@
 The grid filters' failures on Intel are rare (the default ``srupf-gm`` failed 2 of 30
 seeds of the whole log, GMapping-style 2 of 15) and all of them happen in one stretch
 (the interior excursion at scans ~11500-12620 and the return to the south corridor,
-README, robustness section). Thirty whole-log runs cannot tell a failure rate of 7 %
+docs/results.md, robustness section). Thirty whole-log runs cannot tell a failure rate of 7 %
 from 3 %, and each costs the whole log. This script spends the runs on the stretch:
 
 1. it runs the log once with ``--base-seed`` and keeps the filter state (particles,

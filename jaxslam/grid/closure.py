@@ -54,8 +54,8 @@ doors, repeated every few metres), not drift. The tracking then keeps of the
 closure's position correction only the part the scan constrains, as for any match
 (:func:`jaxslam.grid.tracking.constrained_pose`).
 
-Measured (``srupf-gm``, 30 particles, relations error mean per seed, m; the README's
-robustness section, "Loop-closure search", has every log and the commands). MIT
+Measured (``srupf-gm``, 30 particles, relations error mean per seed, m; the
+robustness section of ``docs/results.md``, "Loop-closure search", has every log and the commands). MIT
 Killian, seeds 0-9:
 
 ==========================================  ==============================================
@@ -112,7 +112,7 @@ scans that show the alias come after the jump. So a closure taken is watched
 takes back the correction the tracking applied (the closure's, less what
 :func:`jaxslam.grid.tracking.constrained_pose` dropped), whatever the match at the
 undone pose scores, and refuses the same candidate afterwards. The map keeps what the
-scans in between wrote. Measured (the README's loop-closure section has every log):
+scans in between wrote. Measured (``docs/results.md``, loop-closure section, has every log):
 Killian seeds 0-9 0.26 / 1.47 / 1.04 / 0.15 / 0.86 / 0.14 / 1.55 / 0.70 / 0.10 / 0.69 m
 (mean 0.70, median 0.69, worst 1.55, against 0.92 / 0.175 / 5.39 without the undo);
 Intel's seed 1 0.044 m against 0.524 m. (The perturbed campus, 0.296 m with the undo
@@ -139,7 +139,7 @@ Intel-high's seeds 0 and 1 are false closures (3.5-3.8 m at scan 825, into groun
 map barely knows, undone 8 scans later): relations of 4 m, mean errors 0.066 and 0.064
 m against GMapping C++'s 0.069 and 0.062 m. On the raw MIT CSAIL log (no relations)
 the search closes the building's loops that the tracking alone leaves open (the
-README's session 42 section has the maps and every log).
+session 42 section of ``docs/results.md`` has the maps and every log).
 
 A fast undo (``closure_undo_fast``, 1: off, the default) undoes a closure before the
 watch ends, once the watched share averages over it on at least two scans and
@@ -228,7 +228,7 @@ ten one-thread seeds (the median error of the relations into it, before the jump
 seeds with more than 6 m there had missed it. Below :math:`R / \gamma` = 300 m the far
 stage never runs, and a run whose searches all start within 300 m of the last closure
 is the same to the last digit with and without it. Measured in one program (the rate
-is a parameter, so both arms run the same compiled code; the README's suite v5.3 has
+is a parameter, so both arms run the same compiled code; ``docs/results.md``'s suite v5.3 has
 every log and seed), rate 0 against 0.02, relations error mean / worst seed: Killian
 seeds 0-9, one thread, 0.65 / 1.61 against 0.50 / 1.08 m (five seeds better, one worse,
 four the same); seeds 0-4 on two threads (as ``jaxslam run`` compiles it) 0.37 / 1.08
@@ -255,7 +255,7 @@ Cost: one window of :math:`(2(r + R)/\rho)^2` cells (``r`` =
 :math:`1.1 \cdot 10^6` reads at 5 cm (:math:`0.9 \cdot 10^6` at R = 4 m), and
 :math:`(2\Theta/\delta + 1)(2R/h + 1)^2` candidates of half the matched beams: 13-20 ms
 on one core of the 2-core machine at R = 4 m, for the scans under the trigger only
-(the whole runs' times at 6 m are in the README's session 44 section).
+(the whole runs' times at 6 m are in ``docs/results.md``'s session 44 section).
 """
 
 from __future__ import annotations

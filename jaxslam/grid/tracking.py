@@ -108,7 +108,7 @@ the odometry model's motion noise (:func:`tracked_noise_scale`; at a metre per s
 GMapping's 0.2 rad/m heading noise scattered particles beyond their hill climbs, and
 a lost particle scores well against its own map), a match counts from any score
 (``min_score`` 0, GMapping's ``minimumScore``) and tracking trusts a match from 0.1
-(was 0.3). The five-seed table of every log is in the README (robustness suite).
+(was 0.3). The five-seed table of every log is in ``docs/results.md`` (robustness suite).
 
 The pose of every scan is the filter's own: the best lineage's keyframe pose composed
 with the tracked motion :math:`m_t` of the scan (``Info.motion``), see
@@ -256,8 +256,8 @@ def tracked_noise_scale(params: GridSlamParams, config: GridSlamConfig) -> Array
     0.030 m against 0.026 / 0.027 m. Scaling only the scans whose match was trusted
     (full noise after a refused match) was worse on Edmonton (0.42-1.19 m): refused
     matches are mostly sparse scenes, where wide proposals lose particles.
-    In between (``srupf-gm``, seeds 0-4, worst seed; the README's loop-closure
-    section): :math:`\kappa` = 0.6 gave csail-high 0.090 against 0.115 m and Intel
+    In between (``srupf-gm``, seeds 0-4, worst seed; ``docs/results.md``,
+    loop-closure section): :math:`\kappa` = 0.6 gave csail-high 0.090 against 0.115 m and Intel
     0.035 against 0.045 m, but MIT Killian 3.69 against 1.50 m; 0.4 failed an Intel
     seed (0.378 m).
     """

@@ -246,7 +246,7 @@ walls the maps held from keyframes a metre apart. With 0.5 m: none of 100 such r
 and none of 30 whole runs failed, MIT Killian scored 1.01-1.50 m against 1.52-2.06 m
 (seeds 0-2), FR079 0.037-0.038 m against 0.034-0.035 m, the perturbed logs as before
 or better but for one Seattle seed (0.144 against 0.062 m), and a run takes about a
-third longer (README, robustness section). Stressed from four filter states that its
+third longer (``docs/results.md``, robustness section). Stressed from four filter states that its
 own parameters made (``--own-base``), 0.5 m failed 1 of 80 runs, 1 m 4 of 80. The
 GMapping-style filter keeps :data:`GMAPPING_KEYFRAMES`: with 0.5 m it failed 3 of 10
 whole Intel runs against 2, and 16 of 120 stressed runs from its own states against
