@@ -68,9 +68,9 @@ WATCH_M = _default_watch()
 """Path length over which ``watch_conflict`` averages: the filter's own ``closure_watch``
 default, read from :func:`jaxslam.grid.types.default_params` so the two cannot drift apart."""
 RIGHT_M = 0.5
+"""A right closure's judging relations have a median translational error under this (m)."""
 LEVEL_FROM_M, LEVEL_TO_M = 200.0, 20.0
 """Path before a closure (m) over which ``conflict_level`` averages the share."""
-"""A right closure's judging relations have a median translational error under this (m)."""
 
 
 def closures(path: str, relations=None) -> list[dict]:
