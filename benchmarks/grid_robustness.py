@@ -409,6 +409,9 @@ def main(argv: list[str] | None = None) -> int:
                                 "cpu_s": (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime),
                                 "keyframes": int(run.keyframe_indices.shape[0])})
                     traj, times, kf_i, kf_p = run.trajectory, run.scan_times, run.keyframe_indices, run.keyframe_poses
+                    # the same arrays as a jaxslam run's npz, so that a diagnosis can read either
+                    np.savez(work / f"{tag}.npz", trajectory=traj, scan_times=times, keyframes=kf_i,
+                             keyframe_poses=kf_p)
                 else:
                     spec = {"log": entry["source"], "algorithm": algorithm, "particles": args.particles,
                             "seed": entry["seed"], "max_keyframes": args.max_keyframes,
