@@ -1,4 +1,4 @@
-"""How far saved runs have drifted where a perturbed log comes back to a place.
+r"""How far saved runs have drifted where a perturbed log comes back to a place.
 
 For the runs that ``benchmarks/grid_robustness.py`` keeps (``--work``, default
 ``/tmp/grid_robustness/TAG/*.npz``: jaxslam's runs and, since session 56, GMapping
@@ -6,7 +6,10 @@ C++'s) on a perturbed GMapping-corrected log, this compares the pose of scan ``b
 relative to scan ``a`` with the corrected log's (the reference the suite scores
 against):
 
-.. math:: e = (x^{ref}_a \ominus x^{ref}_b)^{-1} \oplus (x_a \ominus x_b),
+.. math:: e = \big((x^{ref}_a)^{-1} \oplus x^{ref}_b\big)^{-1} \oplus \big(x_a^{-1} \oplus x_b\big)
+
+(:func:`jaxslam.datasets.geometry.se2_between` three times, as the relations metric
+composes its errors),
 
 reported as its position (m) and heading (deg). With ``a`` and ``b`` at the same place
 (the Freiburg campus: scans 5 and 735, the end of its 700 m loop, before any closure
