@@ -99,6 +99,10 @@ class Config:
             (the association search space).
         candidates: nearest landmarks (Euclidean, from the predicted pose) per
             observation that get the full sigma-point Mahalanobis test.
+        observation_widths: narrower copies of the step that are compiled besides the
+            full observation width (only those under it): a scan runs on the
+            narrowest that holds its last real observation, since the per-particle
+            work grows with the padded width (:func:`jaxslam.feature.filter.step`).
         resampler: ``systematic``, ``stratified``, ``multinomial`` or ``residual``.
         skip_stationary: skip a scan whose controls all have zero speed (UFastSLAM).
         compare_proposals: also compute the other proposal's covariance for
@@ -119,6 +123,7 @@ class Config:
     update: str = "batch"
     local_size: int = 64
     candidates: int = 2
+    observation_widths: tuple = (4, 7)
     resampler: str = "systematic"
     skip_stationary: bool = True
     compare_proposals: bool = True
@@ -133,5 +138,8 @@ class Config:
             raise ValueError(f"likelihood must be one of {LIKELIHOODS}, got {self.likelihood!r}")
         if min(self.num_particles, self.capacity, self.local_size, self.candidates) < 1:
             raise ValueError("num_particles, capacity, local_size and candidates must be >= 1")
+        object.__setattr__(self, "observation_widths", tuple(self.observation_widths))
+        if any(not isinstance(w, int) or w < 1 for w in self.observation_widths):
+            raise ValueError(f"observation_widths must be positive ints, got {self.observation_widths!r}")
         if self.candidates > self.local_size:
             raise ValueError("candidates must not exceed local_size")

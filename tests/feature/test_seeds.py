@@ -36,15 +36,19 @@ def test_ensemble_equals_single_runs(ensemble):
     assert not np.allclose(ens.trajectory[0], ens.trajectory[1])
 
 
-def _step_states(width_extra: int):
+def _step_states(width_extra: int, widths: tuple = (), front: bool = False):
+    """Three steps of a 6-particle filter on a simulated log whose observation slots
+    are padded by ``width_extra`` (after the real slots, or before them: ``front``).
+    The scans keep 2, 3 and 6 of their 6 observations, so narrow widths take some."""
     seq = simulate(seed=1, num_steps=3, max_observations=6)
     params = F.cast_params(params_for(seq), jnp.float32)
-    config = Config(num_particles=6, **CONFIG)
+    config = Config(num_particles=6, observation_widths=widths, **CONFIG)
     state = F.init(jax.random.PRNGKey(0), params, config)
     infos = []
+    pad = (width_extra, 0) if front else (0, width_extra)
     for t in range(3):
-        values = np.pad(seq.observations[t], ((0, width_extra), (0, 0)), constant_values=7.0)
-        mask = np.pad(seq.obs_mask[t], (0, width_extra))
+        values = np.pad(seq.observations[t], (pad, (0, 0)), constant_values=7.0)
+        mask = np.pad(seq.obs_mask[t] & (np.arange(6) < (2, 3, 6)[t]), pad)
         obs = F.Observation(jnp.asarray(values, jnp.float32), jnp.asarray(mask))
         state, info = F.step(jax.random.PRNGKey(t), state, jnp.asarray(seq.controls[t], jnp.float32), obs, params,
                              config)
@@ -52,13 +56,26 @@ def _step_states(width_extra: int):
     return state, infos
 
 
+def test_observation_widths():
+    assert F.observation_widths(Config(observation_widths=(4, 7)), 14) == (4, 7, 14)
+    assert F.observation_widths(Config(observation_widths=(7, 4, 20)), 6) == (4, 6)
+    assert F.observation_widths(Config(observation_widths=()), 14) == (14,)
+    assert Config(observation_widths=[2, 4]).observation_widths == (2, 4)  # hashable
+    with pytest.raises(ValueError, match="observation_widths"):
+        Config(observation_widths=(0, 4))
+
+
 @pytest.mark.long
-def test_padding_slots_change_nothing():
-    """Width 6 (no split) and 14 (every real observation in the first half: the
-    half-width branch) give the same particles."""
+@pytest.mark.parametrize("widths", [(), (2, 4), (4, 7)])
+def test_padding_slots_change_nothing(widths):
+    """The same particles whatever the padding and the narrower widths compiled
+    (``Config.observation_widths``): real observations in the first slots (a narrow
+    branch runs where they fit) or in the last ones (only the full width holds them;
+    a width chosen by their count instead of the last real slot would drop them).
+    """
     reference, ref_infos = _step_states(0)
-    for extra in (8,):
-        state, infos = _step_states(extra)
+    for extra, front in ((0, False), (8, False), (8, True)):
+        state, infos = _step_states(extra, widths, front)
         np.testing.assert_allclose(state.poses, reference.poses, atol=1e-5)
         np.testing.assert_allclose(state.log_weights, reference.log_weights, atol=1e-4)
         np.testing.assert_allclose(state.landmarks.means, reference.landmarks.means, atol=1e-4)
