@@ -76,7 +76,7 @@ from jaxslam.core.se2 import pose_residual, wrap_angle
 from jaxslam.driver import best_particle, scan_runner
 from jaxslam.feature.landmarks import LandmarkTable, empty_table
 from jaxslam.feature.params import Config, Params
-from jaxslam.feature.particle import Observation, ParticleOut, particle_step
+from jaxslam.feature.particle import Observation, ParticleOut, apply_writes, pad_writes, particle_writes
 
 
 class State(NamedTuple):
@@ -322,7 +322,7 @@ def step(
     particle_keys = jax.random.split(k_sample, config.num_particles)
 
     def particles_step(state, observation):
-        return jax.vmap(particle_step, (0, 0, 0, 0, None, None, None, None))(
+        return jax.vmap(particle_writes, (0, 0, 0, 0, None, None, None, None))(
             particle_keys, state.poses, state.pose_sqrt_covs, state.landmarks, control, observation, params, config
         )
 
@@ -333,12 +333,15 @@ def step(
         def on_width(used, state):
             if used == width:
                 return particles_step(state, observation)
-            out = particles_step(state, Observation(observation.values[:used], observation.mask[:used]))
+            out, writes = particles_step(state, Observation(observation.values[:used], observation.mask[:used]))
             pad = ((0, 0), (0, width - used))
-            return out._replace(matched=jnp.pad(out.matched, pad), new=jnp.pad(out.new, pad))
+            out = out._replace(matched=jnp.pad(out.matched, pad), new=jnp.pad(out.new, pad))
+            return out, pad_writes(writes, width, config.capacity, axis=1)
 
+        # The branches return the maps' writes, made after them: a branch that wrote
+        # into the carried tables would make XLA copy them (1.5 MB at 100 particles).
         if len(widths) == 1:
-            out = particles_step(state, observation)
+            out, writes = particles_step(state, observation)
         else:
             # Most scans fill few of the padded observation slots (Victoria Park: 41% at
             # most 4 of 14, 82% at most 7); such a scan runs on the narrowest width that
@@ -346,7 +349,8 @@ def step(
             # so the result is the same up to float rounding.
             last = jnp.max(jnp.where(observation.mask, jnp.arange(1, width + 1), 0))
             branch = jnp.searchsorted(jnp.asarray(widths), last, side="left")
-            out = jax.lax.switch(branch, [partial(on_width, used) for used in widths], state)
+            out, writes = jax.lax.switch(branch, [partial(on_width, used) for used in widths], state)
+        out = out._replace(landmarks=jax.vmap(apply_writes)(state.landmarks, writes))
         # If every particle failed, the step changes nothing (not even the weights).
         any_finite = jnp.any(out.finite)
         log_weights = jnp.where(any_finite, state.log_weights + out.log_weight_increment, state.log_weights)

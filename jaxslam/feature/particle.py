@@ -9,6 +9,10 @@ unscented Kalman update of each matched landmark (:func:`update_landmark`, 2 sig
 dimensions, additive :math:`R`), new landmarks from the inverse observation model
 (:func:`initialise_landmark`), evidence and pruning. The models themselves are those
 of :mod:`jaxslam.models.vehicle` and :mod:`jaxslam.models.range_bearing`.
+:func:`particle_writes` is the same step with the map update returned as the writes to
+make (:class:`TableWrites`), which the filter applies (:func:`apply_writes`) after its
+branches over the observation width: written inside a branch, the carried tables
+would be copied whole on every scan.
 
 Landmark covariances are symmetrised and their smallest eigenvalue lifted to a floor
 (:func:`_cov_floor`), so a downdate that would lose positive definiteness is
@@ -212,7 +216,7 @@ class ParticleOut(NamedTuple):
     new: Array  # (k,) observations that started a landmark
 
 
-def particle_step(
+def particle_writes(
     key: Array,
     pose: Array,
     pose_sqrt: Array,
@@ -221,7 +225,11 @@ def particle_step(
     observation: Observation,
     params: Params,
     config: Config,
-) -> ParticleOut:
+) -> tuple[ParticleOut, TableWrites]:
+    """Steps 1-5 for one particle, the map update as the writes to make
+    (:class:`TableWrites`, :func:`apply_writes`) rather than a new table: the filter
+    applies them after its branches over the observation width, so that no branch
+    writes into (and XLA does not copy) the carried tables. ``out.landmarks`` is None."""
     dtype = pose.dtype
     capacity = config.capacity
     z, mask = observation.values, observation.mask
@@ -305,11 +313,8 @@ def particle_step(
         sampled, assoc.landmark_means, table.covs[jnp.minimum(assoc.slots, capacity - 1)], z, params
     )
     lm_slots = jnp.where(finite & lm_ok, assoc.slots, capacity)
-    means = table.means.at[lm_slots].set(lm_means, mode="drop")
-    covs = table.covs.at[lm_slots].set(lm_covs, mode="drop")
-
-    evidence = table.evidence.at[local_written].set(local_evidence, mode="drop")
-    active = table.active.at[local_written].set(alive & local_valid, mode="drop")
+    local_active = alive & local_valid
+    active = table.active.at[local_written].set(local_active, mode="drop")
 
     # 5c. new landmarks in the first free slots (a non-finite one is not stored)
     k = z.shape[0]
@@ -318,20 +323,23 @@ def particle_step(
     new_means, new_covs, new_ok = jax.vmap(initialise_landmark, (None, 0, None))(sampled, z, params)
     storable = assoc.new & finite & new_ok
     new_slots = jnp.where(storable, free[jnp.clip(rank, 0, k - 1)], capacity)
-    means = means.at[new_slots].set(new_means, mode="drop")
-    covs = covs.at[new_slots].set(new_covs, mode="drop")
-    evidence = evidence.at[new_slots].set(jnp.broadcast_to(params.new_evidence, (k,)), mode="drop")
-    active = active.at[new_slots].set(True, mode="drop")
     added = jnp.sum(new_slots < capacity)
     count = table.count + added - num_pruned
     dropped = jnp.sum(storable) - added
     rejected = jnp.sum(finite & ((matched & ~lm_ok) | (assoc.new & ~new_ok)))
+    writes = TableWrites(
+        update_slots=lm_slots, update_means=lm_means, update_covs=lm_covs,
+        local_slots=local_written, local_evidence=local_evidence, local_active=local_active,
+        new_slots=new_slots, new_means=new_means, new_covs=new_covs,
+        new_evidence=jnp.broadcast_to(jnp.asarray(params.new_evidence, dtype), (k,)),
+        count=count.astype(jnp.int32),
+    )
 
     return ParticleOut(
         pose=jnp.where(finite, sampled, pose),
         pose_sqrt=jnp.where(finite, new_sqrt, pose_sqrt),
         log_weight_increment=jnp.where(finite, log_w_inc, -jnp.inf),
-        landmarks=LandmarkTable(means, covs, evidence, active, count.astype(jnp.int32)),
+        landmarks=None,
         has_match=has_match & finite,
         log_det_erb=prop_erb.log_det_cov,
         log_det_rb=prop_rb.log_det_cov,
@@ -344,4 +352,73 @@ def particle_step(
         num_cov_repairs=jnp.sum(finite & matched & lm_repaired),
         matched=matched,
         new=assoc.new,
+    ), writes
+
+
+class TableWrites(NamedTuple):
+    """The writes of one particle's map update (step 5), in the order
+    :func:`apply_writes` makes them; a slot ``C`` (the capacity) is not written.
+
+    ``update_*`` ``(k,)``: matched landmarks after their Kalman update; ``local_*``
+    ``(L,)``: evidence and the active flag of the local set (pruned ones inactive);
+    ``new_*`` ``(k,)``: new landmarks in free slots; ``count``: active landmarks after.
+    """
+
+    update_slots: Array
+    update_means: Array
+    update_covs: Array
+    local_slots: Array
+    local_evidence: Array
+    local_active: Array
+    new_slots: Array
+    new_means: Array
+    new_covs: Array
+    new_evidence: Array
+    count: Array
+
+
+def pad_writes(writes: TableWrites, width: int, capacity: int, axis: int = 0) -> TableWrites:
+    """``writes`` of a step run on fewer observation slots, padded along ``axis`` (1
+    for a batch of particles) to ``width`` slots with writes that are dropped (slot
+    ``capacity``)."""
+    def pad(x, fill):
+        widths = [(0, 0)] * x.ndim
+        widths[axis] = (0, width - x.shape[axis])
+        return jnp.pad(x, widths, constant_values=fill)
+
+    return writes._replace(
+        update_slots=pad(writes.update_slots, capacity), update_means=pad(writes.update_means, 0),
+        update_covs=pad(writes.update_covs, 0), new_slots=pad(writes.new_slots, capacity),
+        new_means=pad(writes.new_means, 0), new_covs=pad(writes.new_covs, 0),
+        new_evidence=pad(writes.new_evidence, 0),
     )
+
+
+def apply_writes(table: LandmarkTable, writes: TableWrites) -> LandmarkTable:
+    """One particle's table after its step's :class:`TableWrites` (scatters that can
+    update the table in place)."""
+    w = writes
+    means = table.means.at[w.update_slots].set(w.update_means, mode="drop")
+    covs = table.covs.at[w.update_slots].set(w.update_covs, mode="drop")
+    evidence = table.evidence.at[w.local_slots].set(w.local_evidence, mode="drop")
+    active = table.active.at[w.local_slots].set(w.local_active, mode="drop")
+    means = means.at[w.new_slots].set(w.new_means, mode="drop")
+    covs = covs.at[w.new_slots].set(w.new_covs, mode="drop")
+    evidence = evidence.at[w.new_slots].set(w.new_evidence, mode="drop")
+    active = active.at[w.new_slots].set(True, mode="drop")
+    return LandmarkTable(means, covs, evidence, active, w.count)
+
+
+def particle_step(
+    key: Array,
+    pose: Array,
+    pose_sqrt: Array,
+    table: LandmarkTable,
+    controls: Array,
+    observation: Observation,
+    params: Params,
+    config: Config,
+) -> ParticleOut:
+    """Steps 1-5 for one particle (module docstring), its table updated."""
+    out, writes = particle_writes(key, pose, pose_sqrt, table, controls, observation, params, config)
+    return out._replace(landmarks=apply_writes(table, writes))
