@@ -6,7 +6,8 @@ the random streams: with the same key both filters draw the same normals for
 sampling and the same uniforms for resampling.
 
 One step (one laser scan), for every particle (``vmap`` of
-:func:`jaxslam.feature.particle.particle_step`, steps 1-5):
+:func:`jaxslam.feature.particle.particle_writes`, steps 1-5, whose map writes the step
+makes after its branches over the observation width, in place):
 
 1. **Prediction** (Sec. II-A.1): for each control row ``[v, alpha, dt]`` of the scan
    (padding rows with ``dt = 0`` are skipped), an unscented transform over

@@ -331,7 +331,7 @@ def particle_writes(
         update_slots=lm_slots, update_means=lm_means, update_covs=lm_covs,
         local_slots=local_written, local_evidence=local_evidence, local_active=local_active,
         new_slots=new_slots, new_means=new_means, new_covs=new_covs,
-        new_evidence=jnp.broadcast_to(jnp.asarray(params.new_evidence, dtype), (k,)),
+        new_evidence=jnp.asarray(params.new_evidence, dtype),
         count=count.astype(jnp.int32),
     )
 
@@ -361,7 +361,8 @@ class TableWrites(NamedTuple):
 
     ``update_*`` ``(k,)``: matched landmarks after their Kalman update; ``local_*``
     ``(L,)``: evidence and the active flag of the local set (pruned ones inactive);
-    ``new_*`` ``(k,)``: new landmarks in free slots; ``count``: active landmarks after.
+    ``new_*`` ``(k,)``: new landmarks in free slots, each with the evidence
+    ``new_evidence`` ``()``; ``count``: active landmarks after.
     """
 
     update_slots: Array
@@ -390,7 +391,6 @@ def pad_writes(writes: TableWrites, width: int, capacity: int, axis: int = 0) ->
         update_slots=pad(writes.update_slots, capacity), update_means=pad(writes.update_means, 0),
         update_covs=pad(writes.update_covs, 0), new_slots=pad(writes.new_slots, capacity),
         new_means=pad(writes.new_means, 0), new_covs=pad(writes.new_covs, 0),
-        new_evidence=pad(writes.new_evidence, 0),
     )
 
 
@@ -404,7 +404,7 @@ def apply_writes(table: LandmarkTable, writes: TableWrites) -> LandmarkTable:
     active = table.active.at[w.local_slots].set(w.local_active, mode="drop")
     means = means.at[w.new_slots].set(w.new_means, mode="drop")
     covs = covs.at[w.new_slots].set(w.new_covs, mode="drop")
-    evidence = evidence.at[w.new_slots].set(w.new_evidence, mode="drop")
+    evidence = evidence.at[w.new_slots].set(jnp.broadcast_to(w.new_evidence, w.new_slots.shape), mode="drop")
     active = active.at[w.new_slots].set(True, mode="drop")
     return LandmarkTable(means, covs, evidence, active, w.count)
 
