@@ -136,8 +136,8 @@ def test_reader_reads_the_tile_of_every_cell_and_unknown_outside_the_table(corne
     table = rng.integers(1, layout.slots, layout.table_size).astype(np.int32)
     corner = np.asarray(corner, np.int32)
     t = layout.tile
-    cols, rows = np.meshgrid(np.arange((corner[0] - 3) * t, (corner[0] + 5 + 3) * t),
-                             np.arange((corner[1] - 3) * t, (corner[1] + 4 + 3) * t))
+    cols, rows = np.meshgrid(np.arange((corner[0] - 3) * t, (corner[0] + layout.table_width + 3) * t),
+                             np.arange((corner[1] - 3) * t, (corner[1] + layout.table_height + 3) * t))
     tx, ty = cols // t - corner[0], rows // t - corner[1]
     inside = (tx >= 0) & (tx < layout.table_width) & (ty >= 0) & (ty < layout.table_height)
     slot = np.where(inside, table[np.clip(ty, 0, layout.table_height - 1) * layout.table_width
