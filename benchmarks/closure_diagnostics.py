@@ -27,18 +27,19 @@ loop-closure search replaced the tracking's match (:mod:`jaxslam.grid.closure`):
   that watched it (up to the undo, else over 5 m of path), which ``closure_undo``
   judges.
 
-Runs saved since session 43 also hold ``info_track_undo``: their undos are not listed
-as closures, and every measure here is taken on the path as it was tracked (the
-reported path takes undone closures back, :func:`jaxslam.grid.closure.take_back`, and
-would hide them; :func:`jaxslam.grid.closure.put_back` undoes that).
+Runs saved since session 43 also hold ``info_track_undo``: their undos are not listed as
+closures, and every measure here is taken on the path as it was tracked (the reported
+path takes undone closures back, :func:`jaxslam.grid.undone_closures.take_back`, and
+would hide them; :func:`jaxslam.grid.undone_closures.put_back` undoes that).
 
     python benchmarks/closure_diagnostics.py --log mit-killian --runs '/tmp/grid_robustness/s39_kil_drift*/*_drift_s*.npz' \\
         --name closure_diagnostics_killian
 
-Prints the table, writes ``benchmarks/results/NAME.json`` and ``NAME.png`` (the
-share after the closure against jump / travelled, by verdict). With ``--log``, a second
-table gives each run's relations error with and without the end's judgment of a closure
-still watched when the log ended (``end_judgment``; :func:`jaxslam.grid.closure.judge_at_end`).
+Prints the table, writes ``benchmarks/results/NAME.json`` and ``NAME.png`` (the share
+after the closure against jump / travelled, by verdict). With ``--log``, a second table
+gives each run's relations error with and without the end's judgment of a closure still
+watched when the log ended (``end_judgment``;
+:func:`jaxslam.grid.undone_closures.judge_at_end`).
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ def closures(path: str, relations=None) -> list[dict]:
     undo_of: dict[int, int] = {}
     if "info_track_undo" in run.files:  # since session 43: undos apart, and the path as tracked
         from grid_common import saved_undo
-        from jaxslam.grid.closure import put_back
+        from jaxslam.grid.undone_closures import put_back
 
         undo = saved_undo(run)  # the last row: the end's judgment (session 50)
         undone_at = np.flatnonzero(undo[:, 0] > 0) + 1
@@ -165,10 +166,10 @@ def plot(rows: list[dict], out: Path, title: str) -> None:
 def end_judgment(path: str, relations) -> dict:
     """One run: the relations error of the reported path, and of the same path without
     the end's judgment of a closure still watched when the log ended (session 50,
-    :func:`jaxslam.grid.closure.judge_at_end`; ``info_track_undo_end``), so that what the
-    judgment changed is measured on the run itself."""
+    :func:`jaxslam.grid.undone_closures.judge_at_end`; ``info_track_undo_end``), so that
+    what the judgment changed is measured on the run itself."""
     from grid_common import saved_undo
-    from jaxslam.grid.closure import put_back
+    from jaxslam.grid.undone_closures import put_back
     from jaxslam.metrics.relations import relation_errors
 
     run = np.load(path)

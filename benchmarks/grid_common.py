@@ -112,12 +112,12 @@ def robot_poses(laser_poses, laser_offset) -> "np.ndarray":
 
 def saved_undo(run, end_only: bool = False) -> "np.ndarray":
     """``(S, 4)`` the undo rows a saved run's reported path took back
-    (:func:`jaxslam.grid.closure.reported_undo`): ``info_track_undo`` of scans 1..S-1
+    (:func:`jaxslam.grid.undone_closures.reported_undo`): ``info_track_undo`` of scans 1..S-1
     (zeros with ``end_only``), then the end's judgment ``info_track_undo_end`` (zeros in
     runs saved before session 50, which have none)."""
     import numpy as np
 
-    from jaxslam.grid.closure import reported_undo
+    from jaxslam.grid.undone_closures import reported_undo
 
     end = run["info_track_undo_end"] if "info_track_undo_end" in run.files else None
     rows = np.zeros((run["trajectory"].shape[0] - 1, 4)) if end_only else run["info_track_undo"]

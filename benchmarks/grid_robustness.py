@@ -224,11 +224,11 @@ def score(
 def score_as_tracked(entry: dict, data, times, kf_i, kf_p, odom) -> dict[str, Any]:
     """Where closures were undone: how many, and the relations error of the path as it
     was tracked, before the reported path took them back
-    (:func:`jaxslam.grid.closure.put_back`)."""
+    (:func:`jaxslam.grid.undone_closures.put_back`)."""
     if "info_track_undo" not in data.files:
         return {}
     from grid_common import saved_undo
-    from jaxslam.grid.closure import put_back
+    from jaxslam.grid.undone_closures import put_back
 
     undo = saved_undo(data)  # with the end's judgment (since session 50)
     record: dict[str, Any] = {"closures_undone": int(np.sum(undo[:, 0] > 0)), "undone_at_end": bool(undo[-1, 0] > 0)}

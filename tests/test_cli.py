@@ -243,7 +243,7 @@ def test_loop_closure_is_srupf_gms_default_can_be_turned_off_and_is_for_laser_da
     assert summary["loop_closure"] is True and summary["closures"] >= 0
     assert isinstance(summary["closure_scans"], list)
     assert 0 <= summary["closures_undone"] <= summary["closures"] and isinstance(summary["undo_scans"], list)
-    assert summary["closure_undone_at_end"] in (True, False)  # jaxslam.grid.closure.judge_at_end
+    assert summary["closure_undone_at_end"] in (True, False)  # jaxslam.grid.undone_closures.judge_at_end
     assert json.loads((out / "run.json").read_text())["loop_closure"] is True  # the default, recorded
     off = tmp_path / "off"
     assert run_cli("run", "--out", str(off), "--algorithm", "srupf-gm", "--particles", "2", "--max-steps", "6",

@@ -150,15 +150,15 @@ seeds and slightly better in two, the infinite corridor the same, the campus wor
 (mean 0.615 against 0.460 m in the same program, session 43; seed 3 1.132 against
 0.363 m). So it stays off.
 
-The path reported takes an undone closure back (session 43; :func:`take_back`): the
-scans between the closure and its undo were tracked in the closure's frame, which
-the filter has since rejected, so their poses are reported in the frame it kept,
-:math:`A^{-1} \oplus x_s` (as the path of a lineage is reported after the
-resamplings that chose it). The filter itself is unchanged (the same program gives
-the same runs to the last digit); ``Info.track_undo`` records what each undo took
-back. Intel-high seeds 0 / 1: 0.047 / 0.049 m against 0.066 / 0.064 m as tracked
-(the relations of 4 m across the false closure at scan 825 fall to 0.5 / 1.2 m:
-the scans in between were matched against the wrong place); Killian seeds 0-9 and
+The path reported takes an undone closure back (session 43;
+:func:`jaxslam.grid.undone_closures.take_back`): the scans between the closure and its
+undo were tracked in the closure's frame, which the filter has since rejected, so their
+poses are reported in the frame it kept, :math:`A^{-1} \oplus x_s` (as the path of a
+lineage is reported after the resamplings that chose it). The filter itself is unchanged
+(the same program gives the same runs to the last digit); ``Info.track_undo`` records
+what each undo took back. Intel-high seeds 0 / 1: 0.047 / 0.049 m against 0.066 / 0.064
+m as tracked (the relations of 4 m across the false closure at scan 825 fall to 0.5 /
+1.2 m: the scans in between were matched against the wrong place); Killian seeds 0-9 and
 the infinite corridor gain 0.00-0.01 m in the seeds with an undo.
 
 No closure inside a watch (session 49; ``closure_nest``, 0: the default). Before, a
@@ -183,16 +183,17 @@ Belgioioso (high) 0-2 and raw FR079 0-4 ran the same to the last digit both ways
 closure was taken inside a watch there. Kept for the rule, and for the largest error: over the twenty Intel seeds the
 largest relation is 2.15 m against 4.25 m, the worst seed's mean 0.047 m both ways.
 
-The end of the run (session 50; :func:`judge_at_end`, ``closure_undo_end``). A log can
-end inside a watch: Intel seed 3 above ends 152 scans after its false closure at 13479,
-whose watched scans averaged 0.35 of their beams in known free space. The path reported
-judges such a closure on the scans it had, with a bar of 0.2 instead of 0.11, because
-fewer scans are averaged (the rates in :func:`judge_at_end`). That run: mean 0.0438 ->
-0.0364 m, relations over 0.5 m 25 -> 19 (the scans after the closure 1.4-2.0 m -> 0.5-0.6
-m off); in another program's draw of Intel seed 4, 0.245 -> 0.218 m (largest relation
-7.13 -> 3.83 m). In the 40 other raw Intel and Killian runs of that session no closure
-was open at the end. The filter is unchanged (raw Intel seeds 0-11 and Killian 1-2 ran
-to the last digit as in session 49); only the reported path and keyframe poses move.
+The end of the run (session 50; :func:`jaxslam.grid.undone_closures.judge_at_end`,
+``closure_undo_end``). A log can end inside a watch: Intel seed 3 above ends 152 scans
+after its false closure at 13479, whose watched scans averaged 0.35 of their beams in
+known free space. The path reported judges such a closure on the scans it had, with a
+bar of 0.2 instead of 0.11, because fewer scans are averaged (the rates in
+:func:`jaxslam.grid.undone_closures.judge_at_end`). That run: mean 0.0438 -> 0.0364 m,
+relations over 0.5 m 25 -> 19 (the scans after the closure 1.4-2.0 m -> 0.5-0.6 m off);
+in another program's draw of Intel seed 4, 0.245 -> 0.218 m (largest relation 7.13 ->
+3.83 m). In the 40 other raw Intel and Killian runs of that session no closure was open
+at the end. The filter is unchanged (raw Intel seeds 0-11 and Killian 1-2 ran to the
+last digit as in session 49); only the reported path and keyframe poses move.
 
 Reach (session 44): ``closure_radius`` 6 m instead of 4 m, a program change measured
 against the runs of session 43 (``srupf-gm``, 30 particles, relations error per seed,
@@ -256,6 +257,10 @@ Cost: one window of :math:`(2(r + R)/\rho)^2` cells (``r`` =
 :math:`(2\Theta/\delta + 1)(2R/h + 1)^2` candidates of half the matched beams: 13-20 ms
 on one core of the 2-core machine at R = 4 m, for the scans under the trigger only
 (the whole runs' times at 6 m are in ``docs/results.md``'s session 44 section).
+
+What the reports do on the host with the undos recorded here (the path reported after
+an undone closure, the judgment of a closure still watched at the end) is
+:mod:`jaxslam.grid.undone_closures`.
 """
 
 from __future__ import annotations
@@ -268,7 +273,6 @@ import numpy as np
 from jax import Array
 
 from jaxslam.core import se2
-from jaxslam.datasets.geometry import se2_compose, se2_inverse
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.matching import hill_climb_match
 from jaxslam.grid.score import cell_coords
@@ -428,7 +432,7 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     closure that replaces it: ``(pose, score, closed, undo, conflict, memory)``
     (``undo (4,)``: zeros, or where the pose is the last closure taken back, which the
     tracking applies whatever its score, the number of scans since that closure was
-    taken and its correction :math:`A`, for :func:`take_back`).
+    taken and its correction :math:`A`, for :func:`jaxslam.grid.undone_closures.take_back`).
 
     ``memory (MEMORY,)`` (the state's ``closure_memory``, this scan's odometry
     included) holds the candidate held from the scans before, the world correction
@@ -536,7 +540,8 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
         jnp.where(closed, travelled, jnp.where(undo, 0.0, before))[None],
         jnp.where(closed, correction, candidate),
     ])
-    # what an undo takes back, for the path reported (:func:`take_back`): the scans since the closure, A
+    # what an undo takes back, for the path reported
+    # (:func:`jaxslam.grid.undone_closures.take_back`): the scans since the closure, A
     taken_back = jnp.where(undo, jnp.concatenate([conflict_count[None], applied.astype(dtype)]), jnp.zeros((4,), dtype))
     return jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, taken_back, conflict, memory
 
@@ -548,86 +553,8 @@ def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
     return memory.at[5:8].set(jnp.where(taken, correction, memory[5:8]))
 
 
-def take_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndarray:
-    r"""Host: ``poses`` (world, of scans ``scans``) with every closure that was undone
-    taken back on the scans it moved.
-
-    ``undo (S-1, 4)`` is ``Info.track_undo`` of scans ``1..S-1`` (:func:`close_loop`): at
-    a scan :math:`b` that undid a closure taken :math:`n` scans before with correction
-    :math:`A`, the scans :math:`b-n \le s < b` were tracked in the closure's frame
-    (:math:`x = A \oplus x_{local}`), and scan :math:`b` on is back in the frame before
-    it. The filter has decided that the closure was an alias, so the path it reports
-    puts those scans where the frame it kept has them, :math:`A^{-1} \oplus x_s`, as a
-    lineage's poses are reported after the resamplings that chose it. (The maps keep
-    what those scans wrote.) Undone windows never overlap: a closure taken inside
-    another's watch restarts it, and only the last one is undone.
-    """
-    return _move_windows(poses, scans, undo, inverse=True)
-
-
-def put_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndarray:
-    r"""Host: the inverse of :func:`take_back`, the path as it was tracked
-    (:math:`A \oplus x_s` on each undone window): what a diagnostic of the closures
-    themselves has to read, since the reported path hides an undone one."""
-    return _move_windows(poses, scans, undo, inverse=False)
-
-
-def judge_at_end(memory: np.ndarray, params) -> np.ndarray:
-    r"""Host: the closure still watched when the run ends, judged on the scans it had.
-
-    The watch of :func:`close_loop` runs over ``closure_watch`` m of odometry; a log
-    that ends sooner leaves its last closure unjudged. The path reported judges it on
-    the :math:`n` scans watched (``memory[10]``, after the closure's own scan), whose
-    shares of beams ending in known free space sum to :math:`\Sigma` (``memory[9]``):
-    it is undone where
-
-    .. math:: n \ge 2, \qquad \Sigma > u_{end}\, n
-
-    (``closure_undo_end``, 1: never). The bar is above ``closure_undo`` because fewer
-    scans are averaged: over the saved suite runs of sessions 48-49 (201 closures that
-    their watch kept, 50 it undid), the share over the first 3 / 10 / 20 watched scans
-    exceeded 0.11 after 24 % / 17 % / 14 % of the kept closures, 0.2 after 4 % / 2 % /
-    1 %; after 42 % / 56 % / 56 % of the undone ones.
-
-    Args:
-        memory: ``(MEMORY,)`` the final state's ``closure_memory``.
-        params: the run's :class:`jaxslam.grid.types.Params` (host values).
-
-    Returns:
-        ``(4,)`` the row :func:`take_back` reads after the last scan's: ``[n + 1, A]``
-        (the closure's scan and the ``n`` watched ones, ``A`` the correction the
-        tracking applied, ``memory[5:8]``), or zeros.
-    """
-    memory = np.asarray(memory, np.float64)
-    count, total = memory[10], memory[9]
-    if memory[8] > 0 and count >= 2 and total > float(params.closure_undo_end) * count:
-        return np.concatenate([[count + 1.0], memory[5:8]])
-    return np.zeros(4)
-
-
-def reported_undo(track_undo: np.ndarray, end: np.ndarray | None) -> np.ndarray:
-    """``(S, 4)``: ``Info.track_undo`` of scans ``1..S-1`` and the end's row
-    (:func:`judge_at_end`; None: zeros), for :func:`take_back` over ``S`` scans."""
-    rows = np.asarray(track_undo, np.float64).reshape(-1, 4)
-    last = np.zeros(4) if end is None else np.asarray(end, np.float64).reshape(4)
-    return np.concatenate([rows, last[None]], 0)
-
-
-def _move_windows(poses, scans, undo, inverse: bool) -> np.ndarray:
-    out = np.array(poses, np.float64, copy=True)
-    undo = np.asarray(undo, np.float64).reshape(-1, 4)
-    scans = np.asarray(scans, np.int64)
-    for row in np.flatnonzero(undo[:, 0] > 0):
-        b = row + 1
-        inside = (scans >= b - int(round(undo[row, 0]))) & (scans < b)
-        if np.any(inside):
-            correction = se2_inverse(undo[row, 1:]) if inverse else undo[row, 1:]
-            out[inside] = se2_compose(correction[None], out[inside])
-    return out
-
-
 __all__ = [
     "BEAM_STRIDE", "FAST_SHARE", "MEMORY", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
     "candidate_scores", "close_loop", "closure_search", "coarse_candidates", "coarse_window", "conflict_fraction",
-    "judge_at_end", "put_back", "record_applied", "refine_best", "reported_undo", "take_back", "window_half",
+    "record_applied", "refine_best", "window_half",
 ]

@@ -38,7 +38,7 @@ from jaxslam.grid.types import (
     default_keyframes,
     default_params,
 )
-from jaxslam.grid.closure import judge_at_end, reported_undo, take_back
+from jaxslam.grid.undone_closures import judge_at_end, reported_undo, take_back
 from jaxslam.grid.range_rule import apply_range_rule
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
@@ -137,7 +137,7 @@ class GridSlamResult:
     def closure_summary(self) -> dict[str, Any]:
         """How often the loop-closure search replaced the tracking's match or undid a
         closure (:mod:`jaxslam.grid.closure`) and at which scans (the first 100 of each); a
-        closure the end's judgment took back (:func:`jaxslam.grid.closure.judge_at_end`)
+        closure the end's judgment took back (:func:`jaxslam.grid.undone_closures.judge_at_end`)
         counts as undone at scan ``S``, and ``closure_undone_at_end`` says so."""
         closed = np.flatnonzero(np.asarray(self.info.get("track_closed", np.zeros(0, bool)), bool)) + 1
         # the rows the reported path took back: every undo, and the end's judgment last (scan S)

@@ -48,7 +48,7 @@ from jaxslam.datasets.geometry import se2_between
 from jaxslam.datasets.rosbag import interpolate_odometry
 from jaxslam.driver import step_keys
 from jaxslam.grid import driver, gmapping, srupf
-from jaxslam.grid.closure import judge_at_end, reported_undo
+from jaxslam.grid.undone_closures import judge_at_end, reported_undo
 from jaxslam.grid.experiment import best_trajectory, keyframe_rule, make_config, map_layout
 from jaxslam.grid.paged import stitch
 from jaxslam.grid.tracking import scan_trajectory
@@ -328,7 +328,7 @@ class StreamingGridSlam:
     def trajectory(self) -> np.ndarray:
         """(S, 3) the filter's pose of every scan so far: its keyframe's corrected pose
         and the tracked motion since (as the batch run), a closure still watched judged
-        on the scans so far (:func:`jaxslam.grid.closure.judge_at_end`; a later scan may
+        on the scans so far (:func:`jaxslam.grid.undone_closures.judge_at_end`; a later scan may
         keep it)."""
         motions = np.stack(self._motions) if self._motions else np.zeros((0, 3))
         undos = np.stack(self._undos) if self._undos else np.zeros((0, 4))

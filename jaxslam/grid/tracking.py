@@ -125,7 +125,8 @@ from jax import Array
 from jaxslam.core import se2
 from jaxslam.datasets.geometry import se2_compose
 from jaxslam.driver import best_particle
-from jaxslam.grid.closure import close_loop, record_applied, take_back
+from jaxslam.grid.closure import close_loop, record_applied
+from jaxslam.grid.undone_closures import take_back
 from jaxslam.grid.filter import empty_info, match_geometry, particle_reader, score_model
 from jaxslam.grid.matching import hill_climb_match
 from jaxslam.grid.score import make_score_fn
@@ -330,7 +331,7 @@ def scan_trajectory(first_pose: np.ndarray, keyframe_flags: np.ndarray, keyframe
         keyframe_poses: ``(K-1, 3)`` the chosen lineage's poses at those keyframes.
         motions: ``(S-1, 3)`` ``Info.motion`` (tracked motion since the last keyframe).
         undo: ``(S-1, 4)`` ``Info.track_undo``, or None: the closures undone are taken
-            back on the scans they had moved (:func:`jaxslam.grid.closure.take_back`).
+            back on the scans they had moved (:func:`jaxslam.grid.undone_closures.take_back`).
 
     Returns:
         ``(keyframes (K,), trajectory (S, 3))``: scan indices of the keyframes (0

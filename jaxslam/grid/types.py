@@ -164,7 +164,7 @@ class GridSlamParams(NamedTuple):
     is judged on its own scans; 1 lets a closure be taken inside another's watch.
     A closure still watched when the run ends is judged in the path reported on the
     scans it had: undone where their share averages over ``closure_undo_end`` (at least
-    two scans; 1: never; :func:`jaxslam.grid.closure.judge_at_end`).
+    two scans; 1: never; :func:`jaxslam.grid.undone_closures.judge_at_end`).
     Weights: ``likelihood_floor`` (per-beam probability of a beam that hits no wall),
     ``weight_gain``, ``resample_threshold`` (ratio of N).
     GMapping motion: ``srr``, ``srt``, ``str_``, ``stt``.

@@ -12,9 +12,9 @@ import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.grid.closure import (
-    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, judge_at_end, put_back,
-    reported_undo, take_back, window_half,
+    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
 )
+from jaxslam.grid.undone_closures import judge_at_end, put_back, reported_undo, take_back
 from jaxslam.grid.map import GridSpec, dense_reader
 from jaxslam.grid.types import default_params
 from jaxslam.grid.tracking import track as _track
