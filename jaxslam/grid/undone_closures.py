@@ -22,9 +22,10 @@ def take_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndar
     r"""Host: ``poses`` (world, of scans ``scans``) with every closure that was undone
     taken back on the scans it moved.
 
-    ``undo (S-1, 4)`` is ``Info.track_undo`` of scans ``1..S-1`` (:func:`jaxslam.grid.closure.close_loop`): at
-    a scan :math:`b` that undid a closure taken :math:`n` scans before with correction
-    :math:`A`, the scans :math:`b-n \le s < b` were tracked in the closure's frame
+    ``undo (S-1, 4)`` is ``Info.track_undo`` of scans ``1..S-1``
+    (:func:`jaxslam.grid.closure.close_loop`): at a scan :math:`b` that undid a closure
+    taken :math:`n` scans before with correction :math:`A`, the scans
+    :math:`b-n \le s < b` were tracked in the closure's frame
     (:math:`x = A \oplus x_{local}`), and scan :math:`b` on is back in the frame before
     it. The filter has decided that the closure was an alias, so the path it reports
     puts those scans where the frame it kept has them, :math:`A^{-1} \oplus x_s`, as a
@@ -45,11 +46,11 @@ def put_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndarr
 def judge_at_end(memory: np.ndarray, params) -> np.ndarray:
     r"""Host: the closure still watched when the run ends, judged on the scans it had.
 
-    The watch of :func:`jaxslam.grid.closure.close_loop` runs over ``closure_watch`` m of odometry; a log
-    that ends sooner leaves its last closure unjudged. The path reported judges it on
-    the :math:`n` scans watched (``memory[10]``, after the closure's own scan), whose
-    shares of beams ending in known free space sum to :math:`\Sigma` (``memory[9]``):
-    it is undone where
+    The watch of :func:`jaxslam.grid.closure.close_loop` runs over ``closure_watch`` m of
+    odometry; a log that ends sooner leaves its last closure unjudged. The path reported
+    judges it on the :math:`n` scans watched (``memory[10]``, after the closure's own
+    scan), whose shares of beams ending in known free space sum to :math:`\Sigma`
+    (``memory[9]``): it is undone where
 
     .. math:: n \ge 2, \qquad \Sigma > u_{end}\, n
 
