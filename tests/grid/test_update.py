@@ -135,3 +135,51 @@ def test_update_is_clamped_and_int8():
     g = np.asarray(grids)
     assert g.dtype == np.int8
     assert g.max() == 100 and g.min() == -100
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_touched_tiles_cover_every_written_cell_and_little_more(seed):
+    """The tiles that :func:`touched_tiles` marks for allocation: every tile that
+    holds a free or hit cell of the scan (else that write would be dropped), and
+    only tiles of a beam row's first/last cell combinations or of a hit (checked
+    in NumPy on the cells the write loop itself visits)."""
+    from jaxslam.grid.paged import PagedLayout, window_side
+    from jaxslam.grid.update import ROW, chunk_cell_coords, scan_rays, touched_tiles
+
+    rng = np.random.default_rng(seed)
+    angles, ranges, valid = random_scan(rng, 91)
+    ranges = ranges * 2.5  # beams that cross several 16-cell tiles
+    layout = PagedLayout(0.05, 4, -8, -8, 16, 16, slots=64, origin_x=0.0, origin_y=0.0)
+    poses = jnp.asarray(rng.uniform([-3.0, -3.0, -np.pi], [3.0, 3.0, np.pi], (5, 3)), jnp.float32)
+    rays = scan_rays(poses, jnp.asarray(ranges, jnp.float32), jnp.asarray(valid), jnp.asarray(angles, jnp.float32),
+                     jnp.zeros(3), layout, 16384, 8.0, chunk_rows=16)
+    side = window_side(8.0, layout)
+    x0 = (rays.geometry.start[:, 0] >> layout.tile_bits) - side // 2
+    y0 = (rays.geometry.start[:, 1] >> layout.tile_bits) - side // 2
+    marks = np.asarray(jax.jit(touched_tiles, static_argnums=(3, 4))(rays, x0, y0, side, layout))
+    x0, y0 = np.asarray(x0), np.asarray(y0)
+
+    def tile(p, cols, rows):
+        return ((np.asarray(rows) >> layout.tile_bits) - y0[p]) * side + ((np.asarray(cols) >> layout.tile_bits) - x0[p])
+
+    chunks = [chunk_cell_coords(rays, i) for i in range(int(rays.num_chunks))]
+    end, hits = np.asarray(rays.geometry.end), np.asarray(rays.hits)
+    for p in range(poses.shape[0]):
+        need = set(tile(p, end[p, hits, 0], end[p, hits, 1]).tolist())
+        for cols, rows, ok in chunks:
+            ok = np.asarray(ok[p])
+            need |= set(tile(p, np.asarray(cols[p])[ok], np.asarray(rows[p])[ok]).tolist())
+        got = set(np.flatnonzero(marks[p]).tolist())
+        assert need <= got, f"particle {p}: tiles {sorted(need - got)} would be written without a slot"
+        # each row of ROW cells spans at most a 2 x 2 block of tiles: nothing else is marked
+        allowed = set(need)
+        for cols, rows, ok in chunks:
+            c = np.asarray(cols[p]).reshape(-1, ROW)
+            r = np.asarray(rows[p]).reshape(-1, ROW)
+            o = np.asarray(ok[p]).reshape(-1, ROW)
+            for cc, rr in zip(c[o.any(1)], r[o.any(1)]):
+                for a in (cc.min(), cc.max()):
+                    for b in (rr.min(), rr.max()):
+                        allowed.add(int(tile(p, a, b)))
+        assert got <= allowed, f"particle {p}: tiles {sorted(got - allowed)} marked that no cell needs"
+        assert len(got) > 4
