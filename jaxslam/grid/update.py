@@ -184,20 +184,30 @@ def touched_tiles(rays: ScanRays, x0: Array, y0: Array, side: int, layout: Paged
     most one it only passes by, which then gets a slot it does not need). Hit cells are
     marked one by one.
     """
-    k_last = jnp.minimum(rays.first + ROW - 1, jnp.where(rays.active, rays.geometry.count[:, rays.beam], 0) - 1)
-    used = rays.active & (rays.first <= k_last)
-    c0, r0 = jax.vmap(cell_at, (0, None, None))(rays.geometry, rays.beam, rays.first)
-    c1, r1 = jax.vmap(lambda g, b, k: cell_at(g, b, k))(rays.geometry, jnp.broadcast_to(rays.beam, k_last.shape), k_last)
-    cols = jnp.concatenate([c0, c1, c0, c1, rays.geometry.end[..., 0]], 1)
-    rows = jnp.concatenate([r0, r1, r1, r0, rays.geometry.end[..., 1]], 1)
-    ok = jnp.concatenate([used, used, used, used, jnp.broadcast_to(rays.hits, rays.geometry.end.shape[:-1])], 1)
-    rel = window_index(cols, rows, x0[:, None], y0[:, None], side, layout)
-    # One flat index per cell into (P, side * side + 1) marks, the last column for
-    # cells to skip: XLA's CPU scatter with one index per update is about twice as
-    # fast as with (row, column) pairs.
     entries = side * side + 1
-    rel = jnp.where(ok, rel, side * side) + (jnp.arange(rel.shape[0], dtype=rel.dtype) * entries)[:, None]
-    marks = jnp.zeros((rel.shape[0] * entries,), bool).at[rel.reshape(-1)].set(True)
+    offset = (jnp.arange(rays.geometry.start.shape[0], dtype=jnp.int32) * entries)[:, None]
+
+    def mark(marks, cols, rows, ok):
+        # One flat index per cell into (P, side * side + 1) marks, the last column for
+        # cells to skip: XLA's CPU scatter with one index per update is about twice as
+        # fast as with (row, column) pairs.
+        rel = window_index(cols, rows, x0[:, None], y0[:, None], side, layout)
+        return marks.at[(jnp.where(ok, rel, side * side) + offset).reshape(-1)].set(True)
+
+    def chunk(i, marks):  # only the chunks the write loop runs (rays.num_chunks)
+        beam, first, active = (jax.lax.dynamic_slice_in_dim(a, i * rays.chunk_rows, rays.chunk_rows)
+                               for a in (rays.beam, rays.first, rays.active))
+        k_last = jnp.minimum(first + ROW - 1, jnp.where(active, rays.geometry.count[:, beam], 0) - 1)
+        used = active & (first <= k_last)
+        c0, r0 = jax.vmap(cell_at, (0, None, None))(rays.geometry, beam, first)
+        c1, r1 = jax.vmap(lambda g, b, k: cell_at(g, b, k))(rays.geometry, jnp.broadcast_to(beam, k_last.shape), k_last)
+        return mark(marks, jnp.concatenate([c0, c1, c0, c1], 1), jnp.concatenate([r0, r1, r1, r0], 1),
+                    jnp.concatenate([used, used, used, used], 1))
+
+    end = rays.geometry.end
+    marks = jnp.zeros((offset.shape[0] * entries,), bool)
+    marks = mark(marks, end[..., 0], end[..., 1], jnp.broadcast_to(rays.hits, end.shape[:-1]))
+    marks = jax.lax.fori_loop(0, rays.num_chunks, chunk, marks)
     return marks.reshape(-1, entries)[:, :-1]
 
 

@@ -156,7 +156,7 @@ def test_touched_tiles_cover_every_written_cell_and_little_more(seed):
     side = window_side(8.0, layout)
     x0 = (rays.geometry.start[:, 0] >> layout.tile_bits) - side // 2
     y0 = (rays.geometry.start[:, 1] >> layout.tile_bits) - side // 2
-    marks = np.asarray(jax.jit(touched_tiles, static_argnums=(3, 4))(rays, x0, y0, side, layout))
+    marks = np.asarray(jax.jit(lambda a, b: touched_tiles(rays, a, b, side, layout))(x0, y0))
     x0, y0 = np.asarray(x0), np.asarray(y0)
 
     def tile(p, cols, rows):
