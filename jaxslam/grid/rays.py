@@ -251,11 +251,15 @@ def scan_rays(
     )
 
 
+def chunk_rows_of(rays: ScanRays, i) -> tuple[Array, Array, Array]:
+    """Rows ``(chunk_rows,)`` of chunk ``i``: their beam, first cell and whether in use."""
+    start = i * rays.chunk_rows
+    return tuple(jax.lax.dynamic_slice_in_dim(a, start, rays.chunk_rows) for a in (rays.beam, rays.first, rays.active))
+
+
 def chunk_cell_coords(rays: ScanRays, i) -> tuple[Array, Array, Array]:
     """Free cells ``(P, chunk_rows * ROW)`` (cols, rows, in use) of chunk ``i``."""
-    start = i * rays.chunk_rows
-    rows_of = [jax.lax.dynamic_slice_in_dim(a, start, rays.chunk_rows) for a in (rays.beam, rays.first, rays.active)]
-    cols, rows, ok = jax.vmap(free_cell_coords, (0, None, None, None))(rays.geometry, *rows_of)
+    cols, rows, ok = jax.vmap(free_cell_coords, (0, None, None, None))(rays.geometry, *chunk_rows_of(rays, i))
     shape = (cols.shape[0], -1)
     return cols.reshape(shape), rows.reshape(shape), ok.reshape(shape)
 
@@ -269,6 +273,7 @@ __all__ = [
     "beam_lengths",
     "cell_at",
     "chunk_cell_coords",
+    "chunk_rows_of",
     "free_cell_coords",
     "free_cells",
     "hit_cells",

@@ -41,6 +41,7 @@ from jaxslam.grid.rays import (  # re-exported (see __all__) for existing caller
     beam_lengths,
     cell_at,
     chunk_cell_coords,
+    chunk_rows_of,
     free_cell_coords,
     free_cells,
     hit_cells,
@@ -195,8 +196,7 @@ def touched_tiles(rays: ScanRays, x0: Array, y0: Array, side: int, layout: Paged
         return marks.at[(jnp.where(ok, rel, side * side) + offset).reshape(-1)].set(True)
 
     def chunk(i, marks):  # only the chunks the write loop runs (rays.num_chunks)
-        beam, first, active = (jax.lax.dynamic_slice_in_dim(a, i * rays.chunk_rows, rays.chunk_rows)
-                               for a in (rays.beam, rays.first, rays.active))
+        beam, first, active = chunk_rows_of(rays, i)
         k_last = jnp.minimum(first + ROW - 1, jnp.where(active, rays.geometry.count[:, beam], 0) - 1)
         used = active & (first <= k_last)
         c0, r0 = jax.vmap(cell_at, (0, None, None))(rays.geometry, beam, first)

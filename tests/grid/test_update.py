@@ -6,11 +6,16 @@ import numpy as np
 import pytest
 
 from jaxslam.grid.map import GridSpec
+from jaxslam.grid.paged import PagedLayout, window_side
 from jaxslam.grid.update import (
+    ROW,
     beam_layout,
     beam_lengths,
+    chunk_cell_coords,
     num_rows,
     required_points,
+    scan_rays,
+    touched_tiles,
     update_grid,
     update_grids,
 )
@@ -143,9 +148,6 @@ def test_touched_tiles_cover_every_written_cell_and_little_more(seed):
     holds a free or hit cell of the scan (else that write would be dropped), and
     only tiles of a beam row's first/last cell combinations or of a hit (checked
     in NumPy on the cells the write loop itself visits)."""
-    from jaxslam.grid.paged import PagedLayout, window_side
-    from jaxslam.grid.update import ROW, chunk_cell_coords, scan_rays, touched_tiles
-
     rng = np.random.default_rng(seed)
     angles, ranges, valid = random_scan(rng, 91)
     ranges = ranges * 2.5  # beams that cross several 16-cell tiles
