@@ -112,23 +112,31 @@ def integrate_rays(flat: Array, rays: ScanRays, index_of, l_free, l_occ, l_max) 
     inc_free, inc_occ = quantise(l_free), quantise(l_occ)
     num_particles = rays.geometry.start.shape[0]
     width = rays.chunk_rows * ROW
+    chunks = rays.beam.shape[0] // rays.chunk_rows  # static; the rows are padded to whole chunks
 
+    # Chunk-major buffers (chunk, particle, cell): a chunk's values are one contiguous
+    # block. Indices are unsigned (never negative; the skip index is ``flat.shape[0]``
+    # or more): no wrap-around of negative indices per cell. The old values are
+    # gathered through the indices just stored, so the cells' coordinates are computed
+    # once, not again inside the gather's kernel (Intel, 30 particles: the read pass
+    # 145 -> 116 us a chunk).
     def read_body(i, carry):
         flat, olds, idxs = carry
-        idx = index_of(*chunk_cell_coords(rays, i))
-        old = flat.at[idx].get(mode="fill", fill_value=0)
-        return (flat, jax.lax.dynamic_update_slice_in_dim(olds, old, i * width, axis=1),
-                jax.lax.dynamic_update_slice_in_dim(idxs, idx, i * width, axis=1))
+        idxs = jax.lax.dynamic_update_index_in_dim(idxs, index_of(*chunk_cell_coords(rays, i)).astype(jnp.uint32), i, 0)
+        old = flat.at[jax.lax.dynamic_index_in_dim(idxs, i, 0, keepdims=False)].get(mode="fill", fill_value=0)
+        return flat, jax.lax.dynamic_update_index_in_dim(olds, old, i, 0), idxs
 
-    samples = rays.beam.shape[0] * ROW
-    olds = jnp.zeros((num_particles, samples), flat.dtype)
-    index_dtype = jax.eval_shape(lambda: index_of(*chunk_cell_coords(rays, 0))).dtype
-    idxs = jnp.zeros((num_particles, samples), index_dtype)
+    olds = jnp.zeros((chunks, num_particles, width), flat.dtype)
+    idxs = jnp.zeros((chunks, num_particles, width), jnp.uint32)
     flat, olds, idxs = jax.lax.fori_loop(0, rays.num_chunks, read_body, (flat, olds, idxs))
+    # The scatter takes its indices and values flat. Flattened here, outside the loop (a
+    # bitcast of the buffers), each chunk is one linear slice; flattened per chunk, XLA's
+    # loop emitters copy it element by element (about 50 us a chunk for each buffer).
+    olds, idxs = olds.reshape(chunks, -1), idxs.reshape(chunks, -1)
 
     def write_body(i, flat):
-        idx = jax.lax.dynamic_slice_in_dim(idxs, i * width, width, axis=1)
-        old = jax.lax.dynamic_slice_in_dim(olds, i * width, width, axis=1).astype(jnp.int32)
+        idx = jax.lax.dynamic_index_in_dim(idxs, i, 0, keepdims=False)
+        old = jax.lax.dynamic_index_in_dim(olds, i, 0, keepdims=False).astype(jnp.int32)
         new = jnp.clip(old + inc_free, -l_max, l_max).astype(flat.dtype)
         return flat.at[idx].set(new, mode="drop")
 
