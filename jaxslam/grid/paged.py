@@ -2,14 +2,15 @@ r"""Paged per-particle occupancy maps: tiles in one shared pool, copy on write.
 
 Cells are ``int8`` quantised log-odds as in :mod:`jaxslam.grid.map`. They live in
 square tiles of ``T x T`` cells (``T = 2**tile_bits``, 64 by default: 3.2 m at 5 cm)
-held in one pool ``(S, T*T)`` shared by all particles. Each particle has a page table
+held in one flat pool of ``S * T*T`` cells (slot ``s`` is cells ``[s T^2, (s+1) T^2)``)
+shared by all particles. Each particle has a page table
 ``(TY * TX,)`` from tile coordinates to pool slots; the table covers the tile box
 ``[x_c, x_c + TX) x [y_c, y_c + TY)`` in the map frame (``(x_c, y_c)`` the table's
 *corner*, ``PagedMaps.corner``, a traced value: see *Growth*), whose
 cell ``(c, r)`` is the square ``[c r_s, (c+1) r_s) x [r r_s, (r+1) r_s)`` (``r_s``
 the resolution; negative coordinates are fine). A cell is read as
 
-.. math:: \mathrm{pool}\big[\mathrm{table}[t_y - y_c, t_x - x_c],\ (r \bmod T)\,T + (c \bmod T)\big],
+.. math:: \mathrm{pool}\big[T^2\, \mathrm{table}[t_y - y_c, t_x - x_c] + (r \bmod T)\,T + (c \bmod T)\big],
     \qquad t_x = \lfloor c / T \rfloor,\ t_y = \lfloor r / T \rfloor,
 
 with slot 0 a tile that is never written: unknown (0) everywhere, so unallocated
@@ -153,7 +154,7 @@ class PagedLayout:
 class PagedMaps(NamedTuple):
     """The maps of all particles: the shared pool, page tables, reference counts."""
 
-    pool: Array  # (S, T*T) int8
+    pool: Array  # (S*T*T,) int8, flat (see ``reader``)
     tables: Array  # (P, TY*TX) int32 slot per tile (0: unknown)
     refcount: Array  # (S,) int32
     corner: Array  # (2,) int32 tile (x, y) of table entry 0 (moves when the table does)
@@ -175,7 +176,7 @@ def ok_status() -> MapStatus:
 def init_maps(num_particles: int, layout: PagedLayout) -> PagedMaps:
     """Empty maps: every table entry unknown, every slot but 0 free."""
     return PagedMaps(
-        pool=jnp.zeros((layout.slots, layout.tile_cells), CELL_DTYPE),
+        pool=jnp.zeros((layout.slots * layout.tile_cells,), CELL_DTYPE),
         tables=jnp.zeros((num_particles, layout.table_size), jnp.int32),
         refcount=jnp.zeros((layout.slots,), jnp.int32).at[0].set(PINNED),
         corner=jnp.asarray([layout.table_x0, layout.table_y0], jnp.int32),
@@ -210,8 +211,12 @@ def reader(pool: Array, table: Array, corner: Array, layout: PagedLayout):
     index: a score kernel outside a loop otherwise reads it through a reshape that
     XLA fuses into the kernel, as a division of each flat index by the table's width
     (the curvature's eight poses of 30 particles took 1.15 ms a keyframe that way,
-    0.81 ms now; the climbs', inside their loop, are as fast either way). The pool
-    stays flat: by (slot, cell) the climbs' kernels took 17 % longer."""
+    0.81 ms now; the climbs', inside their loop, are as fast either way). The pool is
+    held flat in :class:`PagedMaps` for the same reason: a ``(slot, cell)`` pool
+    flattened here was fused into the kernels outside loops as index arithmetic (the
+    curvature's kernel 0.81 -> 0.59 ms a keyframe, the particles' first score 182 ->
+    133 us, with the pool flat), and indexed by ``(slot, cell)`` the climbs' kernels
+    took 17 % longer. Any shape of ``pool`` is read as its flat cells."""
     width, height = layout.table_width, layout.table_height
     padded = jnp.pad(table.reshape(height, width), ((0, 1), (0, 1)))
     cells = pool.reshape(-1)
@@ -314,12 +319,13 @@ def plan_writes(maps: PagedMaps, touched: Array, x0: Array, y0: Array, side: int
     src = jnp.pad(src, (0, pad))
     dst = jnp.pad(dst, (0, pad), constant_values=layout.slots)
 
-    def copy(i, pool):
+    def copy(i, tiles):
         s = jax.lax.dynamic_slice_in_dim(src, i * batch, batch)
         d = jax.lax.dynamic_slice_in_dim(dst, i * batch, batch)
-        return pool.at[d].set(pool[s], mode="drop")
+        return tiles.at[d].set(tiles[s], mode="drop")
 
-    pool = jax.lax.fori_loop(0, (slots_needed_ok + batch - 1) // batch, copy, maps.pool)
+    tiles = maps.pool.reshape(layout.slots, layout.tile_cells)
+    pool = jax.lax.fori_loop(0, (slots_needed_ok + batch - 1) // batch, copy, tiles).reshape(-1)
     refcount = maps.refcount.at[jnp.where(need, flat_slot, layout.slots)].add(-1, mode="drop")
     refcount = refcount.at[jnp.where(need, new_slot, layout.slots)].set(1, mode="drop")
     refcount = refcount.at[0].set(PINNED)
@@ -364,7 +370,7 @@ def grow(maps: PagedMaps, layout: PagedLayout, status: MapStatus, margin_tiles: 
     move.
     """
     code = int(status.code)
-    pool = np.asarray(maps.pool)
+    pool = np.asarray(maps.pool).reshape(layout.slots, layout.tile_cells)
     tables = np.asarray(maps.tables)
     refcount = np.asarray(maps.refcount)
     corner = np.asarray(maps.corner).astype(np.int64)
@@ -402,7 +408,7 @@ def grow(maps: PagedMaps, layout: PagedLayout, status: MapStatus, margin_tiles: 
             new = layout.with_table(corner[0], corner[1], corner[0] + width - 1, corner[1] + height - 1)
     else:
         raise ValueError(f"nothing to grow for status {code}")
-    maps = PagedMaps(jnp.asarray(pool), jnp.asarray(tables), jnp.asarray(refcount),
+    maps = PagedMaps(jnp.asarray(pool.reshape(-1)), jnp.asarray(tables), jnp.asarray(refcount),
                      jnp.asarray(corner, jnp.int32))
     return maps, new
 
@@ -415,7 +421,7 @@ def stitch(pool, table, corner, layout: PagedLayout) -> tuple[np.ndarray, tuple[
         ``(grid, (origin_x, origin_y))``: row 0 at ``origin_y``, rows grow with y;
         a map with no tile yet gives one unknown tile at the table's corner.
     """
-    pool = np.asarray(pool)
+    pool = np.asarray(pool).reshape(-1, layout.tile_cells)
     corner = np.asarray(corner).astype(np.int64)
     table = np.asarray(table).reshape(layout.table_height, layout.table_width)
     t = layout.tile

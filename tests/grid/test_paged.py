@@ -315,7 +315,7 @@ def test_a_table_the_robot_leaves_moves_without_changing_a_cell():
     tables = np.zeros((3, 12, 24), np.int32)
     tables[:, 4:7, 17:21] = rng.integers(1, 64, (3, 3, 4))  # held tiles x 14..17, y 6..8
     tables[1, 5, 22] = 17  # x 19, y 7, held by one particle
-    maps = PagedMaps(jnp.zeros((64, layout.tile_cells), jnp.int8), jnp.asarray(tables.reshape(3, -1)),
+    maps = PagedMaps(jnp.zeros((64 * layout.tile_cells,), jnp.int8), jnp.asarray(tables.reshape(3, -1)),
                      jnp.ones((64,), jnp.int32), jnp.asarray([-3, 2], jnp.int32))
 
     def held(m, lay):
