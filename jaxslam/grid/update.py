@@ -208,7 +208,7 @@ def touched_tiles(rays: ScanRays, x0: Array, y0: Array, side: int, layout: Paged
         k_last = jnp.minimum(first + ROW - 1, jnp.where(active, rays.geometry.count[:, beam], 0) - 1)
         used = active & (first <= k_last)
         c0, r0 = jax.vmap(cell_at, (0, None, None))(rays.geometry, beam, first)
-        c1, r1 = jax.vmap(lambda g, b, k: cell_at(g, b, k))(rays.geometry, jnp.broadcast_to(beam, k_last.shape), k_last)
+        c1, r1 = jax.vmap(cell_at, (0, None, 0))(rays.geometry, beam, k_last)
         return mark(marks, jnp.concatenate([c0, c1, c0, c1], 1), jnp.concatenate([r0, r1, r1, r0], 1),
                     jnp.concatenate([used, used, used, used], 1))
 
