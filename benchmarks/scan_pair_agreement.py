@@ -18,6 +18,18 @@ reference). Per log: the quartiles of ``rms_m``, the median share and the median
 
     python benchmarks/scan_pair_agreement.py --logs fr-campus,intel,seattle --stride 5
 
+``--steps-over M`` checks instead the pairs whose reference step is more than ``M``
+metres sideways (a wheeled robot does not move so in 0.1-1 s; a corrected log's
+path can, where the GMapping run that made it corrected its particle). Each such pair
+is aligned twice: by ICP from the reference's relative pose, and by ICP from the best
+pose of a grid search that does not start from the reference (:func:`grid_search`:
+every 0.1 m and 2 deg within 1.5 m and 20 deg of no motion, then every 0.02 m and
+0.5 deg around the best). Per pair: the reference's step, the grid's step, and the
+mean nearest-neighbour distance of the end points (capped at 0.3 m, so a scan that
+misses the other by more counts 0.3) at the reference's step and at the grid's:
+
+    python benchmarks/scan_pair_agreement.py --logs fr-campus,orebro,csail --steps-over 0.5
+
 Writes ``benchmarks/results/scan_pair_agreement[_NAME].json``.
 """
 
@@ -78,7 +90,46 @@ def icp(reference: np.ndarray, current: np.ndarray, start: np.ndarray, iteration
     return pose, int(use.sum()), float(np.sqrt(np.mean(dist[use] ** 2))) if use.any() else float("nan")
 
 
-def log_pairs(name: str, stride: int) -> list[dict]:
+CAP = 0.3
+"""Nearest-neighbour distances are capped here (m) in :func:`misfit`."""
+
+
+def misfit(tree, current: np.ndarray, pose: np.ndarray) -> float:
+    """Mean distance (m, each capped at :data:`CAP`) from ``current``'s end points
+    placed at ``pose`` to the nearest end point of the k-d ``tree``."""
+    dist, _ = tree.query(transform(current, pose))
+    return float(np.mean(np.minimum(dist, CAP)))
+
+
+def grid_search(reference: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """The relative pose of least :func:`misfit` on a grid around no motion (every
+    0.1 m and 2 deg within 1.5 m and 20 deg), refined on a finer grid around the best
+    (every 0.02 m and 0.5 deg within 0.1 m and 2 deg): a start that does not come
+    from the reference."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(reference)
+
+    def best_of(center, half, step, half_turn, turn_step):
+        shifts = np.arange(-half, half + 1e-9, step)
+        turns = np.radians(np.arange(-half_turn, half_turn + 1e-9, turn_step))
+        best, best_pose = np.inf, center
+        for turn in turns:
+            c, s = np.cos(center[2] + turn), np.sin(center[2] + turn)
+            rotated = current @ np.array([[c, s], [-s, c]])
+            for dx in shifts:
+                for dy in shifts:
+                    dist, _ = tree.query(rotated + center[:2] + (dx, dy))
+                    cost = np.mean(np.minimum(dist, CAP))
+                    if cost < best:
+                        best, best_pose = cost, center + np.array([dx, dy, turn])
+        return best_pose
+
+    coarse = best_of(np.zeros(3), 1.5, 0.1, 20.0, 2.0)
+    return best_of(coarse, 0.1, 0.02, 2.0, 0.5)
+
+
+def _log_scans(name: str):
     from jaxslam.datasets.carmen import load_carmen
     from jaxslam.datasets.perturb import load_reference_log
 
@@ -87,7 +138,37 @@ def log_pairs(name: str, stride: int) -> list[dict]:
     ranges = np.asarray(log.ranges, np.float64)
     valid = np.asarray(log.valid) & np.isfinite(ranges) & (ranges > 0) & (ranges < float(log.max_range) - 0.01)
     angles = np.asarray(log.angles, np.float64)
-    poses = reference.poses
+    return reference.poses, ranges, valid, angles
+
+
+def step_pairs(name: str, sideways: float) -> list[dict]:
+    """The pairs whose reference step is more than ``sideways`` m sideways, each
+    aligned from the reference's step and from :func:`grid_search` (module docstring)."""
+    from scipy.spatial import cKDTree
+
+    poses, ranges, valid, angles = _log_scans(name)
+    steps = se2_between(poses[:-1], poses[1:])
+    rows = []
+    for i in np.flatnonzero(np.abs(steps[:, 1]) > sideways).tolist():
+        a = end_points(ranges[i], valid[i], angles)
+        b = end_points(ranges[i + 1], valid[i + 1], angles)
+        if min(a.shape[0], b.shape[0]) < 10:
+            continue
+        tree = cKDTree(a)
+        from_reference, _, _ = icp(a, b, steps[i])
+        from_grid, _, _ = icp(a, b, grid_search(a, b))
+        if misfit(tree, b, from_reference) < misfit(tree, b, from_grid):
+            from_grid = from_reference
+        rows.append({"scan": i + 1, "reference_step": [round(float(v), 4) for v in steps[i]],
+                     "scan_step": [round(float(v), 4) for v in from_grid],
+                     "misfit_reference_m": misfit(tree, b, steps[i]), "misfit_scans_m": misfit(tree, b, from_grid),
+                     "shift_m": float(np.hypot(*(from_grid[:2] - steps[i][:2]))),
+                     "turn_deg": float(np.degrees(wrap_angle(from_grid[2] - steps[i][2])))})
+    return rows
+
+
+def log_pairs(name: str, stride: int) -> list[dict]:
+    poses, ranges, valid, angles = _log_scans(name)
     rows = []
     for i in range(0, poses.shape[0] - 1, stride):
         relative = se2_between(poses[i][None], poses[i + 1][None])[0]
@@ -107,8 +188,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--logs", default="fr-campus,intel,seattle,infinite-corridor,fhw,csail,belgioioso",
                         help="corrected logs (jaxslam.datasets.perturb.CORRECTED_LOGS), comma separated")
     parser.add_argument("--stride", type=int, default=5, help="every STRIDE-th consecutive pair")
+    parser.add_argument("--steps-over", type=float, default=None, metavar="M",
+                        help="check the pairs whose reference step is more than M m sideways (module docstring)")
     parser.add_argument("--name", default="")
     args = parser.parse_args(argv)
+    if args.steps_over is not None:
+        return steps_main(args)
     table, logs = [], {}
     for name in [n for n in args.logs.split(",") if n]:
         print(f"{name} ...", file=sys.stderr, flush=True)
@@ -125,6 +210,28 @@ def main(argv: list[str] | None = None) -> int:
     suffix = f"_{args.name}" if args.name else ""
     print(write_json(f"scan_pair_agreement{suffix}", {"stride": args.stride,
                                                       "gates_m": GATES, "logs": logs}))
+    return 0
+
+
+def steps_main(args) -> int:
+    table, logs = [], {}
+    for name in [n for n in args.logs.split(",") if n]:
+        print(f"{name} ...", file=sys.stderr, flush=True)
+        rows = step_pairs(name, args.steps_over)
+        logs[name] = rows
+        for r in rows:
+            table.append({"log": name, "scan": r["scan"],
+                          "reference_step": " ".join(f"{v:+.2f}" for v in r["reference_step"][:2])
+                          + f" {np.degrees(r['reference_step'][2]):+.1f}deg",
+                          "scan_step": " ".join(f"{v:+.2f}" for v in r["scan_step"][:2])
+                          + f" {np.degrees(r['scan_step'][2]):+.1f}deg",
+                          "misfit_reference_m": round(r["misfit_reference_m"], 3),
+                          "misfit_scans_m": round(r["misfit_scans_m"], 3),
+                          "shift_m": round(r["shift_m"], 2), "turn_deg": round(r["turn_deg"], 1)})
+    if table:
+        print_table(table, list(table[0]))
+    suffix = f"_{args.name}" if args.name else ""
+    print(write_json(f"scan_pair_steps{suffix}", {"steps_over_m": args.steps_over, "cap_m": CAP, "logs": logs}))
     return 0
 
 

@@ -45,3 +45,25 @@ def test_icp_recovers_a_known_motion_and_reports_the_noise():
     noisy = _scan(walls, second, 0.03, rng)
     _, _, rms_noisy = spa.icp(a, noisy, truth)
     assert 0.0 < rms < 0.03 and rms_noisy > rms + 0.005, (rms, rms_noisy)
+
+
+def test_grid_search_finds_a_motion_a_wrong_reference_step_misses():
+    """The --steps-over check: the reference says the robot stepped 0.9 m sideways,
+    the scans were taken 0.5 m forward with a 8 deg turn. The grid search, which does
+    not start from the reference, finds the scans' step on its own (within its fine
+    grid's 0.02 m and 0.5 deg), and the misfit there is far below the misfit at the
+    reference's step."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(1)
+    walls = _room()
+    first, second = np.array([-1.0, 0.5, 0.1]), np.array([-0.5, 0.55, 0.24])
+    a = _scan(walls, first, 0.01, rng)
+    b = _scan(walls, second, 0.01, rng)
+    truth = spa.se2_between(first[None], second[None])[0]
+    found = spa.grid_search(a, b)
+    np.testing.assert_allclose(found, truth, atol=0.015)
+    tree = cKDTree(a)
+    wrong = np.array([0.05, -0.9, 0.2])
+    assert spa.misfit(tree, b, found) < 0.03
+    assert spa.misfit(tree, b, wrong) > 4 * spa.misfit(tree, b, found)
