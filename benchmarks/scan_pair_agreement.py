@@ -24,9 +24,9 @@ path can, where the GMapping run that made it corrected its particle). Each such
 is aligned twice: by ICP from the reference's relative pose, and by ICP from the best
 pose of a grid search that does not start from the reference (:func:`grid_search`:
 every 0.1 m and 2 deg within 1.5 m and 20 deg of no motion, then every 0.02 m and
-0.5 deg around the best). Per pair: the reference's step, the grid's step, and the
-mean nearest-neighbour distance of the end points (capped at 0.3 m, so a scan that
-misses the other by more counts 0.3) at the reference's step and at the grid's:
+0.5 deg around the best). Per pair: the reference's step, the scans' step (the better
+of the two fits), and the mean nearest-neighbour distance of the end points (capped at
+0.3 m, so a scan that misses the other by more counts 0.3) at each of the two:
 
     python benchmarks/scan_pair_agreement.py --logs fr-campus,orebro,csail --steps-over 0.5
 
@@ -94,35 +94,36 @@ CAP = 0.3
 """Nearest-neighbour distances are capped here (m) in :func:`misfit`."""
 
 
+def _capped_mean(dist: np.ndarray) -> np.ndarray:
+    """Mean over the last axis of nearest-neighbour distances, each capped at :data:`CAP`."""
+    return np.mean(np.minimum(dist, CAP), axis=-1)
+
+
 def misfit(tree, current: np.ndarray, pose: np.ndarray) -> float:
     """Mean distance (m, each capped at :data:`CAP`) from ``current``'s end points
     placed at ``pose`` to the nearest end point of the k-d ``tree``."""
     dist, _ = tree.query(transform(current, pose))
-    return float(np.mean(np.minimum(dist, CAP)))
+    return float(_capped_mean(dist))
 
 
-def grid_search(reference: np.ndarray, current: np.ndarray) -> np.ndarray:
-    """The relative pose of least :func:`misfit` on a grid around no motion (every
-    0.1 m and 2 deg within 1.5 m and 20 deg), refined on a finer grid around the best
-    (every 0.02 m and 0.5 deg within 0.1 m and 2 deg): a start that does not come
-    from the reference."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(reference)
+def grid_search(tree, current: np.ndarray) -> np.ndarray:
+    """The relative pose of least :func:`misfit` against the k-d ``tree`` of the first
+    scan's end points on a grid around no motion (every 0.1 m and 2 deg within 1.5 m and
+    20 deg), refined on a finer grid around the best (every 0.02 m and 0.5 deg within
+    0.1 m and 2 deg): a start that does not come from the reference. Each heading's
+    translations are scored in one query."""
 
     def best_of(center, half, step, half_turn, turn_step):
         shifts = np.arange(-half, half + 1e-9, step)
-        turns = np.radians(np.arange(-half_turn, half_turn + 1e-9, turn_step))
+        grid = np.stack(np.meshgrid(shifts, shifts, indexing="ij"), -1).reshape(-1, 2)  # (dx, dy)
         best, best_pose = np.inf, center
-        for turn in turns:
-            c, s = np.cos(center[2] + turn), np.sin(center[2] + turn)
-            rotated = current @ np.array([[c, s], [-s, c]])
-            for dx in shifts:
-                for dy in shifts:
-                    dist, _ = tree.query(rotated + center[:2] + (dx, dy))
-                    cost = np.mean(np.minimum(dist, CAP))
-                    if cost < best:
-                        best, best_pose = cost, center + np.array([dx, dy, turn])
+        for turn in np.radians(np.arange(-half_turn, half_turn + 1e-9, turn_step)):
+            placed = transform(current, center + np.array([0.0, 0.0, turn]))
+            dist, _ = tree.query(placed[None, :, :] + grid[:, None, :])
+            costs = _capped_mean(dist)
+            k = int(np.argmin(costs))
+            if costs[k] < best:
+                best, best_pose = costs[k], center + np.array([grid[k, 0], grid[k, 1], turn])
         return best_pose
 
     coarse = best_of(np.zeros(3), 1.5, 0.1, 20.0, 2.0)
@@ -156,7 +157,7 @@ def step_pairs(name: str, sideways: float) -> list[dict]:
             continue
         tree = cKDTree(a)
         from_reference, _, _ = icp(a, b, steps[i])
-        from_grid, _, _ = icp(a, b, grid_search(a, b))
+        from_grid, _, _ = icp(a, b, grid_search(tree, b))
         if misfit(tree, b, from_reference) < misfit(tree, b, from_grid):
             from_grid = from_reference
         rows.append({"scan": i + 1, "reference_step": [round(float(v), 4) for v in steps[i]],

@@ -61,9 +61,9 @@ def test_grid_search_finds_a_motion_a_wrong_reference_step_misses():
     a = _scan(walls, first, 0.01, rng)
     b = _scan(walls, second, 0.01, rng)
     truth = spa.se2_between(first[None], second[None])[0]
-    found = spa.grid_search(a, b)
-    np.testing.assert_allclose(found, truth, atol=0.015)
     tree = cKDTree(a)
+    found = spa.grid_search(tree, b)
+    np.testing.assert_allclose(found, truth, atol=0.015)
     wrong = np.array([0.05, -0.9, 0.2])
     assert spa.misfit(tree, b, found) < 0.03
     assert spa.misfit(tree, b, wrong) > 4 * spa.misfit(tree, b, found)
