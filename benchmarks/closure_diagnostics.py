@@ -22,6 +22,12 @@ loop-closure search replaced the tracking's match (:mod:`jaxslam.grid.closure`):
   by their translational errors (:func:`jaxslam.metrics.relations.relation_errors`,
   the metric's own): ``R`` (right) if their median ``relation_error_m`` is under 0.5
   m, ``W`` (wrong) otherwise, ``?`` without such relations;
+* ``heading_fix_deg`` and ``taken_back`` (with ``--reference``, the corrected log a
+  perturbed log was made from): the heading error against the reference that the
+  closure's step removed, ``e_c`` with ``e_k = wrap(dtheta_k - dtheta_ref_k)`` the error
+  of the increment that ends at scan ``k``, and the share of it that the next
+  :data:`TAKEN_BACK_SCANS` scans took back, ``-(e_{c+1} + ... + e_{c+10}) / e_c`` (1: the
+  path is back in the frame it had before the closure; session 64, CSAIL seed 8);
 * ``undone_at``: the scan whose watch undid the closure, if one did, and
   ``watch_conflict``: the share of beams in known free space averaged over the scans
   that watched it (up to the undo, else over 5 m of path), which ``closure_undo``
@@ -70,12 +76,28 @@ WATCH_M = _default_watch()
 default, read from :func:`jaxslam.grid.types.default_params` so the two cannot drift apart."""
 RIGHT_M = 0.5
 """A right closure's judging relations have a median translational error under this (m)."""
+TAKEN_BACK_SCANS = 10
+"""Scans after a closure over which ``taken_back`` sums the heading error."""
 LEVEL_FROM_M, LEVEL_TO_M = 200.0, 20.0
 """Path before a closure (m) over which ``conflict_level`` averages the share."""
 
 
-def closures(path: str, relations=None) -> list[dict]:
-    """The closures of one saved run (see the module docstring)."""
+def heading_taken_back(poses: np.ndarray, reference: np.ndarray, c: int) -> tuple[float, float]:
+    """``(heading_fix_deg, taken_back)`` of a closure at scan ``c`` (module docstring)."""
+    from jaxslam.datasets.geometry import se2_between, wrap_angle
+
+    n = min(poses.shape[0], reference.shape[0])
+    if c >= n:
+        return float("nan"), float("nan")
+    error = wrap_angle(se2_between(poses[:n - 1], poses[1:n])[:, 2] - se2_between(reference[:n - 1], reference[1:n])[:, 2])
+    fix = error[c - 1]  # error[i] is the increment that ends at scan i + 1
+    after = error[c:c + TAKEN_BACK_SCANS].sum()
+    return float(np.degrees(fix)), float(-after / fix) if fix != 0 else float("nan")
+
+
+def closures(path: str, relations=None, reference: np.ndarray | None = None) -> list[dict]:
+    """The closures of one saved run (see the module docstring); ``reference``: the
+    corrected log's poses, for ``heading_fix_deg`` and ``taken_back``."""
     from jaxslam.datasets.geometry import se2_between
     from jaxslam.metrics.relations import relation_errors
 
@@ -118,6 +140,8 @@ def closures(path: str, relations=None) -> list[dict]:
             "watch_conflict": watched_conflict(conflict, length, int(c), undo_of.get(int(c))),
             "conflict_level": conflict_level(conflict, length, int(c)),
         })
+        if reference is not None:
+            rows[-1]["heading_fix_deg"], rows[-1]["taken_back"] = heading_taken_back(path_poses, reference, int(c))
         last = c
     return rows
 
@@ -191,8 +215,15 @@ def main(argv=None) -> None:
     ap.add_argument("--runs", action="append", required=True, help="glob of saved runs (.npz); repeatable")
     ap.add_argument("--log", default=None, help="raw log whose benchmark relations judge the closures, or a "
                     "relations file (a perturbed log's, written by grid_robustness.py into WORK/TAG/logs/)")
+    ap.add_argument("--reference", default=None, help="corrected log a perturbed log was made from (name or "
+                    "path): adds heading_fix_deg and taken_back")
     ap.add_argument("--name", default="closure_diagnostics")
     args = ap.parse_args(argv)
+    reference = None
+    if args.reference:
+        from jaxslam.datasets.perturb import load_reference_log
+
+        reference = load_reference_log(args.reference).poses
 
     relations = None
     if args.log:
@@ -202,10 +233,11 @@ def main(argv=None) -> None:
     paths = sorted({p for pattern in args.runs for p in glob.glob(pattern)})
     if not paths:
         raise SystemExit(f"no runs match {args.runs}")
-    rows = [row for p in paths for row in closures(p, relations)]
+    rows = [row for p in paths for row in closures(p, relations, reference)]
     print_table(rows, ["run", "scan", "jump_m", "turn_deg", "travelled_m", "jump_per_m", "score_before", "score",
                        "conflict_before", "conflict_after", "relation_error_m", "verdict", "undone_at",
-                       "watch_conflict", "conflict_level"])
+                       "watch_conflict", "conflict_level"] + (["heading_fix_deg", "taken_back"] if reference is not None
+                                                              else []))
     summary = {}
     for verdict in ("R", "W", "?"):
         after = np.array([r["conflict_after"] for r in rows if r["verdict"] == verdict])
@@ -217,7 +249,7 @@ def main(argv=None) -> None:
     if ends:
         print_table(ends, ["run", "closures", "undone_at_end_scans", "mean_m", "max_m", "over_0.5",
                            "without_end_mean_m", "without_end_max_m", "without_end_over_0.5"])
-    out = write_json(args.name, {"runs": paths, "log": args.log, "closures": rows,
+    out = write_json(args.name, {"runs": paths, "log": args.log, "reference": args.reference, "closures": rows,
                                  "summary": summary, "end_judgment": ends})
     name = Path(args.log).stem if args.log and Path(args.log).is_file() else (args.log or "runs")
     plot(rows, RESULTS / f"{args.name}.png", f"{name}: loop closures ({len(paths)} runs)")
