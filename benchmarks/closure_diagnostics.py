@@ -82,14 +82,11 @@ LEVEL_FROM_M, LEVEL_TO_M = 200.0, 20.0
 """Path before a closure (m) over which ``conflict_level`` averages the share."""
 
 
-def heading_taken_back(poses: np.ndarray, reference: np.ndarray, c: int) -> tuple[float, float]:
-    """``(heading_fix_deg, taken_back)`` of a closure at scan ``c`` (module docstring)."""
-    from jaxslam.datasets.geometry import se2_between, wrap_angle
-
-    n = min(poses.shape[0], reference.shape[0])
-    if c >= n:
+def heading_taken_back(error: np.ndarray, c: int) -> tuple[float, float]:
+    """``(heading_fix_deg, taken_back)`` of a closure at scan ``c`` (module docstring);
+    ``error``: :func:`grid_common.heading_errors` of the run against the reference."""
+    if c > error.shape[0]:
         return float("nan"), float("nan")
-    error = wrap_angle(se2_between(poses[:n - 1], poses[1:n])[:, 2] - se2_between(reference[:n - 1], reference[1:n])[:, 2])
     fix = error[c - 1]  # error[i] is the increment that ends at scan i + 1
     after = error[c:c + TAKEN_BACK_SCANS].sum()
     return float(np.degrees(fix)), float(-after / fix) if fix != 0 else float("nan")
@@ -116,6 +113,10 @@ def closures(path: str, relations=None, reference: np.ndarray | None = None) -> 
         closed = np.setdiff1d(closed, undone_at)
         path_poses = put_back(path_poses, np.arange(path_poses.shape[0]), undo)
     length = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path_poses[:, :2], axis=0).T))])
+    if reference is not None:
+        from grid_common import heading_errors
+
+        heading_error = heading_errors(path_poses, reference)
     if relations is not None:
         errors = relation_errors(relations, stamps, path_poses)
         first = np.minimum(errors.index1, errors.index2)
@@ -141,7 +142,7 @@ def closures(path: str, relations=None, reference: np.ndarray | None = None) -> 
             "conflict_level": conflict_level(conflict, length, int(c)),
         })
         if reference is not None:
-            rows[-1]["heading_fix_deg"], rows[-1]["taken_back"] = heading_taken_back(path_poses, reference, int(c))
+            rows[-1]["heading_fix_deg"], rows[-1]["taken_back"] = heading_taken_back(heading_error, int(c))
         last = c
     return rows
 

@@ -110,6 +110,20 @@ def robot_poses(laser_poses, laser_offset) -> "np.ndarray":
     return se2_compose(laser_poses, np.broadcast_to(back, laser_poses.shape))
 
 
+def heading_errors(poses, reference) -> "np.ndarray":
+    """``(n-1,)`` heading error (rad) of each scan-to-scan increment of ``poses`` against
+    ``reference`` over their ``n`` common scans: ``wrap(dtheta_k - dtheta_ref_k)``, entry
+    ``k - 1`` for the increment that ends at scan ``k``."""
+    import numpy as np
+
+    from jaxslam.datasets.geometry import se2_between, wrap_angle
+
+    poses, reference = np.asarray(poses, np.float64), np.asarray(reference, np.float64)
+    n = min(len(poses), len(reference))
+    step = se2_between(poses[:n - 1], poses[1:n])[:, 2] - se2_between(reference[:n - 1], reference[1:n])[:, 2]
+    return wrap_angle(step)
+
+
 def saved_undo(run, end_only: bool = False) -> "np.ndarray":
     """``(S, 4)`` the undo rows a saved run's reported path took back
     (:func:`jaxslam.grid.undone_closures.reported_undo`): ``info_track_undo`` of scans 1..S-1

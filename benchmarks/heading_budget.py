@@ -48,6 +48,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, write_json  # noqa: E402
+from grid_common import heading_errors  # noqa: E402
 
 from jaxslam.datasets.geometry import se2_between, wrap_angle  # noqa: E402
 
@@ -56,13 +57,6 @@ def heading_increments(poses: np.ndarray) -> np.ndarray:
     """``(S-1, 3)`` robot-frame increments between consecutive poses."""
     poses = np.asarray(poses, np.float64)
     return se2_between(poses[:-1], poses[1:])
-
-
-def heading_errors(poses: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """``(n-1,)`` heading error (rad) of each increment of ``poses`` against ``reference``
-    over their common scans."""
-    n = min(len(poses), len(reference))
-    return wrap_angle(heading_increments(poses[:n])[:, 2] - heading_increments(reference[:n])[:, 2])
 
 
 def budget(errors: np.ndarray, accepted: np.ndarray, keyframe: np.ndarray) -> dict[str, float]:

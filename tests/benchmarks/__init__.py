@@ -22,3 +22,15 @@ def load_benchmark(name: str):
     sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
+
+
+def turning_path(turns, step: float = 1.0):
+    """``(len(turns) + 1, 3)`` poses that drive ``step`` m forward and then turn by each of
+    ``turns`` (rad): a path whose heading increments are ``turns``."""
+    import numpy as np
+
+    poses = [np.zeros(3)]
+    for turn in turns:
+        x, y, t = poses[-1]
+        poses.append(np.array([x + step * np.cos(t), y + step * np.sin(t), t + turn]))
+    return np.array(poses)

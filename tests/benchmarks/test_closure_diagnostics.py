@@ -8,9 +8,10 @@ import pytest
 
 from jaxslam.metrics.relations import Relations
 
-from . import load_benchmark
+from . import load_benchmark, turning_path
 
 closure_diagnostics = load_benchmark("closure_diagnostics")
+grid_common = load_benchmark("grid_common")
 
 
 def test_a_right_and_a_wrong_closure(tmp_path):
@@ -109,34 +110,26 @@ def test_conflict_level_is_the_share_over_the_path_before_the_closure(tmp_path):
     assert row["conflict_level"] == pytest.approx(0.2)
 
 
-def _headings_path(turns):
-    """Poses 1 m apart, turning by each of ``turns`` (rad) after each step."""
-    poses = [np.zeros(3)]
-    for turn in turns:
-        x, y, t = poses[-1]
-        poses.append(np.array([x + np.cos(t), y + np.sin(t), t + turn]))
-    return np.array(poses)
-
-
 def test_heading_taken_back_after_a_closure(tmp_path):
     """The run drifts +1 deg a scan for 15 scans, a closure at scan 20 takes the 15 deg
     back, and the next five scans drift -3 deg each (all of it taken back again): share
     1. Where they do not, share 0."""
     turns = np.zeros(40)
-    reference = _headings_path(turns)
+    reference = turning_path(turns)
     drift = turns.copy()
     drift[4:19] += np.radians(1.0)  # increments ending at scans 5-19
     drift[19] -= np.radians(15.0)  # the closure's increment ends at scan 20
     back = drift.copy()
     back[20:25] += np.radians(3.0)  # scans 21-25 turn the frame back
     for trajectory, share in ((back, 1.0), (drift, 0.0)):
-        fix, taken = closure_diagnostics.heading_taken_back(_headings_path(trajectory), reference, 20)
+        error = grid_common.heading_errors(turning_path(trajectory), reference)
+        fix, taken = closure_diagnostics.heading_taken_back(error, 20)
         assert fix == pytest.approx(-15.0, abs=1e-9)
         assert taken == pytest.approx(share, abs=1e-9)
     closed = np.zeros(40, bool)
     closed[19] = True
     run = tmp_path / "run.npz"
-    np.savez(run, trajectory=_headings_path(back), scan_times=np.arange(41.0), info_track_closed=closed,
+    np.savez(run, trajectory=turning_path(back), scan_times=np.arange(41.0), info_track_closed=closed,
              info_track_conflict=np.zeros(40), info_track_score=np.full(40, 0.5))
     rows = closure_diagnostics.closures(str(run), None, reference)
     assert rows[0]["heading_fix_deg"] == pytest.approx(-15.0) and rows[0]["taken_back"] == pytest.approx(1.0)

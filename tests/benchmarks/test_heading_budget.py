@@ -6,32 +6,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from . import load_benchmark
+from . import load_benchmark, turning_path
 
 heading_budget = load_benchmark("heading_budget")
-
-
-def _path(headings, step=1.0):
-    """Poses driving ``step`` m forward then turning by each heading increment."""
-    poses = [np.zeros(3)]
-    for turn in headings:
-        x, y, t = poses[-1]
-        poses.append(np.array([x + step * np.cos(t), y + step * np.sin(t), t + turn]))
-    return np.array(poses)
+grid_common = load_benchmark("grid_common")
 
 
 def test_budget_puts_the_error_on_the_scans_that_made_it():
     """The run equals the reference except for +2 deg on two refused scans and -1 deg on
     one trusted scan: the refused sum is +4 deg, the trusted one -1 deg, all +3 deg."""
     turns = np.radians([5.0, -3.0, 10.0, 0.0, -7.0, 2.0])
-    reference = _path(turns)
+    reference = turning_path(turns)
     wrong = turns.copy()
     wrong[[1, 4]] += np.radians(2.0)
     wrong[2] -= np.radians(1.0)
-    run = _path(wrong)
+    run = turning_path(wrong)
     accepted = np.array([1, 0, 1, 1, 0, 1], bool)
     keyframe = np.array([0, 1, 0, 1, 0, 0], bool)
-    out = heading_budget.budget(heading_budget.heading_errors(run, reference), accepted, keyframe)
+    out = heading_budget.budget(grid_common.heading_errors(run, reference), accepted, keyframe)
     assert out["all_deg"] == pytest.approx(3.0, abs=1e-9)
     assert out["refused_deg"] == pytest.approx(4.0, abs=1e-9)
     assert out["trusted_deg"] == pytest.approx(-1.0, abs=1e-9)
