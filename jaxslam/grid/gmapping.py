@@ -27,6 +27,7 @@ from jax import Array
 
 from jaxslam.driver import scan_runner
 from jaxslam.grid.filter import (
+    coarse_start,
     finish_step,
     guard,
     init,
@@ -72,7 +73,8 @@ def correct_pose(
         read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     matcher = get_matcher(config.matcher)
-    best, best_score = matcher(score_fn, pose, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
+    start = coarse_start(read, local_points, mask, pose, params, config)
+    best, best_score = matcher(score_fn, start, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
     count = jnp.maximum(jnp.sum(mask), 1).astype(pose.dtype)
     if config.constrain_matches:
         best = constrained_pose(score_fn, best, pose, best_score, count, params)

@@ -72,6 +72,7 @@ from jaxslam.core.sigma import UTParams
 from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
 from jaxslam.driver import scan_runner
 from jaxslam.grid.filter import (
+    coarse_start,
     finish_step,
     guard,
     init,
@@ -187,7 +188,7 @@ def particle_update(
         matcher = get_matcher(config.matcher)
         best, best_score = matcher(
             score_fn,
-            start,
+            coarse_start(read, local_points, mask, start, params, config),
             prediction.sqrt_cov,
             params,
             config.match_iterations,

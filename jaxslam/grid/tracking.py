@@ -127,7 +127,7 @@ from jaxslam.datasets.geometry import se2_compose
 from jaxslam.driver import best_particle
 from jaxslam.grid.closure import close_loop, record_applied
 from jaxslam.grid.undone_closures import take_back
-from jaxslam.grid.filter import empty_info, match_geometry, particle_reader, score_model
+from jaxslam.grid.filter import coarse_start, empty_info, match_geometry, particle_reader, score_model
 from jaxslam.grid.matching import hill_climb_match
 from jaxslam.grid.score import make_score_fn
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
@@ -166,6 +166,8 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     def attempt(i, carry):
         best, best_score = carry
         start = jnp.where(i == 0, guess, retry)
+        if config.coarse_tracking:
+            start = coarse_start(read, local_points, mask, start, params, config)
         return jax.lax.cond(
             (i == 0) | (jnp.max(turned_scores) > best_score),
             lambda: hill_climb_match(score_fn, start, None, params, config.match_iterations),

@@ -34,6 +34,12 @@ class GridSlamConfig:
         max_points: ray-sample budget per scan (see :mod:`jaxslam.grid.update`).
         match_stride: scan matching and weighting use beams ``0, s, 2s, ...``.
         match_iterations: hill-climbing iterations (6 candidate poses each).
+        coarse_iterations: coarse-to-fine matches: each hill climb first climbs this
+            many iterations on the wide kernel of ``params.coarse_sigma`` and then its
+            ``match_iterations`` on the narrow one from there
+            (:func:`jaxslam.grid.filter.coarse_start`); 0 (the default) turns it off.
+        coarse_tracking: with ``coarse_iterations``, the tracking's climbs get the
+            coarse stage too (else only the particles' at keyframes).
         refine_steps: optax gradient steps after the search (0: none).
         matcher: ``"hill"`` (GMapping), ``"ellipse"`` (SRUPF-GM), ``"gradient"``.
         correction: SRUPF-GM only: ``"pc"`` (pose correction by the matcher) or
@@ -77,6 +83,8 @@ class GridSlamConfig:
     max_points: int
     match_stride: int = 1
     match_iterations: int = 8
+    coarse_iterations: int = 0
+    coarse_tracking: bool = True
     refine_steps: int = 0
     matcher: str = "hill"
     correction: str = "pc"
@@ -104,6 +112,8 @@ class GridSlamConfig:
                 raise ValueError(f"GridSlamConfig.{name} must be one of {allowed}, got {getattr(self, name)!r}")
         if self.num_particles < 1 or self.num_beams < 1 or self.max_points < 1 or self.match_stride < 1:
             raise ValueError("num_particles, num_beams, max_points and match_stride must be >= 1")
+        if self.coarse_iterations < 0:
+            raise ValueError(f"coarse_iterations must be >= 0, got {self.coarse_iterations}")
         if not self.window_range > 0:
             raise ValueError(f"window_range must be > 0, got {self.window_range}")
 
@@ -121,7 +131,9 @@ class GridSlamParams(NamedTuple):
     score and the log-likelihood, :func:`jaxslam.grid.filter.beam_weights`).
     Map (quantised log-odds steps): ``l_free``, ``l_occ``, ``l_max`` (clamp),
     ``occ_saturation`` (steps at which a cell scores 1), ``score_sigma`` (m, width of
-    the ``gaussian3`` kernel), ``log_odds_unit`` (natural log-odds per step, for
+    the ``gaussian3`` kernel), ``coarse_sigma`` (m, its width in the coarse stage of
+    ``config.coarse_iterations``; 0.2236 m is GMapping's own kernel,
+    ``exp(-d^2 / 0.05 m^2)``), ``log_odds_unit`` (natural log-odds per step, for
     export).
     Matching: ``linear_step``, ``angular_step`` (GMapping's lstep/astep),
     ``ellipse_radius`` and ``ellipse_step`` (first step; both in standard
@@ -184,6 +196,7 @@ class GridSlamParams(NamedTuple):
     l_max: Array
     occ_saturation: Array
     score_sigma: Array
+    coarse_sigma: Array
     log_odds_unit: Array
     linear_step: Array
     angular_step: Array
@@ -297,6 +310,7 @@ def default_params(
         "l_max": 60.0,
         "occ_saturation": 8.0,
         "score_sigma": 0.05,
+        "coarse_sigma": 0.2236,
         "log_odds_unit": 0.2,
         "linear_step": 0.05,
         "angular_step": 0.05,

@@ -116,6 +116,29 @@ def test_tracking_corrects_a_wrong_increment_and_falls_back_on_a_bad_match(sim):
         np.testing.assert_allclose(np.asarray(motion), wrong, atol=1e-12)
 
 
+def test_coarse_to_fine_tracking_corrects_a_wrong_increment(sim):
+    """With ``coarse_iterations`` the tracking's climb starts where a climb on the wide
+    kernel ended: an increment 0.1 m and 0.1 rad wrong, where the plain climb stops in
+    a worse optimum, is corrected; with ``coarse_tracking`` off the tracking is the
+    plain one, to the last digit."""
+    track = jax.jit(_track, static_argnums=4)
+    with jax.enable_x64(True):
+        state, scans, params, config = state_and_scans(sim)
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = true_step + np.array([0.1, 0.05, -0.1])
+        coarse = dataclasses.replace(config, coarse_iterations=3)
+        plain = track(state, wrong, scans[3], params, config)
+        motion, score, accepted, *_ = track(state, wrong, scans[3], params, coarse)
+        assert bool(accepted) and float(score) > float(plain[1])
+        stuck = np.abs(se2_between(true_step[None], np.asarray(plain[0])[None])[0])
+        after = np.abs(se2_between(true_step[None], np.asarray(motion)[None])[0])
+        assert stuck[2] > 0.1, stuck  # the plain climb's worse optimum
+        assert after[2] < 0.01 and np.hypot(*after[:2]) < 0.02, after
+        untracked = track(state, wrong, scans[3], params, dataclasses.replace(coarse, coarse_tracking=False))
+        for a, b in zip(plain, untracked, strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 def test_constrained_shift_drops_the_flat_direction_of_a_corridor():
     """A score that is a ridge along x (a corridor along x) gives no information on x:
     the correction keeps only its y part; a bowl keeps both."""
