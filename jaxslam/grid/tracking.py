@@ -163,14 +163,17 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     turned_scores = score_fn(turned)
     retry = turned[jnp.argmax(turned_scores)]
 
+    def climb(start):
+        if config.coarse_tracking:  # the coarse stage only where the climb runs
+            start = coarse_start(read, local_points, mask, start, params, config)
+        return hill_climb_match(score_fn, start, None, params, config.match_iterations)
+
     def attempt(i, carry):
         best, best_score = carry
         start = jnp.where(i == 0, guess, retry)
-        if config.coarse_tracking:
-            start = coarse_start(read, local_points, mask, start, params, config)
         return jax.lax.cond(
             (i == 0) | (jnp.max(turned_scores) > best_score),
-            lambda: hill_climb_match(score_fn, start, None, params, config.match_iterations),
+            lambda: climb(start),
             lambda: (best, best_score),
         )
 

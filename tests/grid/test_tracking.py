@@ -134,8 +134,8 @@ def test_coarse_to_fine_tracking_corrects_a_wrong_increment(sim):
         after = np.abs(se2_between(true_step[None], np.asarray(motion)[None])[0])
         assert stuck[2] > 0.1, stuck  # the plain climb's worse optimum
         assert after[2] < 0.01 and np.hypot(*after[:2]) < 0.02, after
-        untracked = track(state, wrong, scans[3], params, dataclasses.replace(coarse, coarse_tracking=False))
-        for a, b in zip(plain, untracked, strict=True):
+        particles_only = track(state, wrong, scans[3], params, dataclasses.replace(coarse, coarse_tracking=False))
+        for a, b in zip(plain, particles_only, strict=True):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
