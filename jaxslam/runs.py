@@ -206,6 +206,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "wall_s": result.wall_s, "compile_s": result.compile_s,
         "keyframes_per_s": result.keyframes.shape[0] / result.wall_s if result.wall_s > 0 else None,
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name, "loop_closure": bool(result.config.closure),
+        "coarse_iterations": int(result.config.coarse_iterations),
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}), "load_s": load_s, "log_cache": log_cache,
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
@@ -379,6 +380,10 @@ def run(
         from jaxslam.checkpoint import Checkpoint
 
         fingerprint = {k: v for k, v in run_args.items() if k not in ("chunk", "threads")}
+        if kind == "laser":  # a default that changed between versions must not change a resumed run
+            from jaxslam.grid.experiment import coarse_default
+
+            fingerprint["coarse_iterations"] = coarse_default(algorithm)
         checkpoint = Checkpoint(out / "checkpoint.npz", every=checkpoint_every, fingerprint=fingerprint,
                                 resume=resume)
         if resume and not checkpoint.path.exists():

@@ -206,6 +206,14 @@ def closure_default(algorithm: str) -> bool:
     return algorithm != "gmapping"
 
 
+def coarse_default(algorithm: str) -> int:
+    """The coarse-to-fine match's wide climbs by default (``config.coarse_iterations``,
+    :func:`jaxslam.grid.filter.coarse_start`): 4 for SRUPF-GM, measured over the whole
+    robustness suite (``docs/results.md``, suites v5.19-v5.20); 0 for the other filters,
+    which it was not measured on."""
+    return 4 if algorithm == "srupf-gm" else 0
+
+
 def make_config(
     algorithm: str, particles: int, layout: PagedLayout, num_beams: int, max_points: int, **overrides
 ) -> GridSlamConfig:
@@ -221,6 +229,7 @@ def make_config(
         # robustness suite: see jaxslam.grid.gmapping).
         "constrain_matches": algorithm != "gmapping",
         "closure": closure_default(algorithm),
+        "coarse_iterations": coarse_default(algorithm),
     }
     base.update(overrides)
     return GridSlamConfig(particles, layout, num_beams, max_points, **base)

@@ -67,8 +67,10 @@ def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: Gr
 
     and the caller's matcher then climbs from :math:`x_c` on the narrow score, whose
     value is the match's score (the tracking's trust, the closure search's trigger,
-    the curvature test and the weights are all the narrow kernel's). Measured and off
-    by default: ``docs/results.md``, "Suite v5.19".
+    the curvature test and the weights are all the narrow kernel's). Measured over the
+    whole robustness suite; SRUPF-GM's default since
+    (:func:`jaxslam.grid.experiment.coarse_default`): ``docs/results.md``, "Suite
+    v5.19" and "Suite v5.20".
     """
     if not config.coarse_iterations:
         return pose

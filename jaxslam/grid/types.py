@@ -37,7 +37,9 @@ class GridSlamConfig:
         coarse_iterations: coarse-to-fine matches: each hill climb first climbs this
             many iterations on the wide kernel of ``params.coarse_sigma`` and then its
             ``match_iterations`` on the narrow one from there
-            (:func:`jaxslam.grid.filter.coarse_start`); 0 (the default) turns it off.
+            (:func:`jaxslam.grid.filter.coarse_start`); 0 turns it off (the
+            dataclass's default; :func:`jaxslam.grid.experiment.make_config` sets 4 for
+            SRUPF-GM).
         coarse_tracking: with ``coarse_iterations``, the tracking's climbs get the
             coarse stage too (else only the particles' at keyframes).
         refine_steps: optax gradient steps after the search (0: none).

@@ -124,6 +124,7 @@ def test_coarse_to_fine_tracking_corrects_a_wrong_increment(sim):
     track = jax.jit(_track, static_argnums=4)
     with jax.enable_x64(True):
         state, scans, params, config = state_and_scans(sim)
+        config = dataclasses.replace(config, coarse_iterations=0)  # the plain climb (SRUPF-GM's default has it)
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = true_step + np.array([0.1, 0.05, -0.1])
         coarse = dataclasses.replace(config, coarse_iterations=3)
@@ -282,6 +283,11 @@ def test_gmapping_correction_moves_only_along_constrained_directions(sim):
     # The loop-closure search likewise: SRUPF-GM's default, not the GMapping-style filter's.
     assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).closure and closure_default("srupf-gm")
     assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).closure and not closure_default("gmapping")
+    # The coarse-to-fine match: SRUPF-GM's default (four wide climbs), off for the others.
+    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).coarse_iterations == 4
+    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096, coarse_iterations=0).coarse_iterations == 0
+    assert make_config("gmapping", 2, layout, sim.num_beams, 4096).coarse_iterations == 0
+    assert make_config("srupf-gm-npc", 2, layout, sim.num_beams, 4096).coarse_iterations == 0
 
 
 def test_keyframe_control_carries_the_tracked_noise_scale(sim):
@@ -325,6 +331,7 @@ def test_tracking_finds_a_turn_beyond_the_hill_climbs_reach(sim):
     track = jax.jit(_track, static_argnums=4)
     with jax.enable_x64(True):
         state, scans, params, config = state_and_scans(sim)
+        config = dataclasses.replace(config, coarse_iterations=0)  # the hill climb alone, no coarse stage
         plain = params._replace(track_turn=np.float64(0.0))
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         for miss in (0.15, -0.15):
