@@ -330,12 +330,16 @@ def test_tracking_finds_a_turn_beyond_the_hill_climbs_reach(sim):
     the plain match's."""
     track = jax.jit(_track, static_argnums=4)
     with jax.enable_x64(True):
-        state, scans, params, config = state_and_scans(sim)
-        config = dataclasses.replace(config, coarse_iterations=0)  # the hill climb alone, no coarse stage
+        state, scans, params, default = state_and_scans(sim)
+        config = dataclasses.replace(default, coarse_iterations=0)  # the hill climb alone, no coarse stage
         plain = params._replace(track_turn=np.float64(0.0))
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         for miss in (0.15, -0.15):
             wrong = true_step + np.array([0.0, 0.0, miss])
+            # SRUPF-GM's default (the coarse stage before each climb) finds the turn too.
+            moved, _, taken, *_ = track(state, wrong, scans[3], params, default)
+            off = np.abs(se2_between(true_step[None], np.asarray(moved)[None])[0])
+            assert default.coarse_iterations > 0 and bool(taken) and off[2] < 0.005, (miss, off)
             motion, score, accepted, *_ = track(state, wrong, scans[3], params, config)
             motion0, score0, *_ = track(state, wrong, scans[3], plain, config)
             error = np.abs(se2_between(true_step[None], np.asarray(motion)[None])[0])
