@@ -46,7 +46,7 @@ from jaxslam.grid.types import (
     noise_scale_of,
 )
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.matching import get_matcher
+from jaxslam.grid.matching import get_matcher, search_bound
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
 from jaxslam.grid.tracking import constrained_pose, per_scan
 from jaxslam.models.odometry import sample_gmapping
@@ -73,7 +73,8 @@ def correct_pose(
         read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     matcher = get_matcher(config.matcher)
-    start = coarse_start(read, local_points, mask, pose, params, config)
+    start = coarse_start(read, local_points, mask, pose, params, config,
+                         search_bound(config.matcher, pose, pose_sqrt_cov, params, params.coarse_radius))
     best, best_score = matcher(score_fn, start, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
     count = jnp.maximum(jnp.sum(mask), 1).astype(pose.dtype)
     if config.constrain_matches:

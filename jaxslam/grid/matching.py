@@ -201,10 +201,8 @@ def ellipse_match(
     default ``pose``), so a search started from a sample of the prediction covers
     the same region as one started from its mean.
     """
-    factor = ellipse_factor(pose_sqrt_cov, params)
-    basis = jnp.diag(jnp.sqrt(jnp.sum(factor * factor, -1)))
-    centre = pose if prior_mean is None else prior_mean
-    bound = EllipseBound(centre, factor, jnp.asarray(params.ellipse_radius, pose.dtype))
+    bound = search_bound("ellipse", pose if prior_mean is None else prior_mean, pose_sqrt_cov, params)
+    basis = jnp.diag(jnp.sqrt(jnp.sum(bound.sqrt_cov * bound.sqrt_cov, -1)))
     best, score, _ = hill_climb(score_fn, pose, basis, iterations, bound, params.ellipse_step)
     if refine_steps:
         best, score = gradient_refine(score_fn, best, basis, refine_steps, params.learning_rate)
@@ -224,6 +222,24 @@ MATCHERS = {
     "ellipse": ellipse_match,
     "gradient": gradient_match,
 }
+
+
+def search_bound(
+    matcher: str | Callable, centre: Array, pose_sqrt_cov: Array, params, radius=None
+) -> EllipseBound | None:
+    r"""The region a matcher may search: for ``"ellipse"`` the poses within
+    ``radius`` (default ``ellipse_radius``) standard deviations of ``centre`` under
+    the prediction's covariance (with the floor of :func:`ellipse_factor`),
+    :math:`\|S^{-1}(x - \mu)\| \le r`; ``None`` (anywhere) for the others, whose
+    climbs are GMapping's unbounded ones. The coarse stage that climbs before the
+    matcher (:func:`jaxslam.grid.filter.coarse_start`) takes the same ellipse with
+    ``params.coarse_radius``.
+    """
+    if matcher != "ellipse":
+        return None
+    factor = ellipse_factor(pose_sqrt_cov, params)
+    r = params.ellipse_radius if radius is None else radius
+    return EllipseBound(centre, factor, jnp.asarray(r, centre.dtype))
 
 
 def get_matcher(name: str | Callable) -> Callable:
@@ -248,4 +264,5 @@ __all__ = [
     "gradient_refine",
     "hill_climb",
     "hill_climb_match",
+    "search_bound",
 ]

@@ -91,7 +91,7 @@ from jaxslam.grid.types import (
     noise_scale_of,
 )
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.matching import get_matcher
+from jaxslam.grid.matching import get_matcher, search_bound
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
 from jaxslam.grid.tracking import constrained_pose, per_scan
 from jaxslam.models.odometry import (
@@ -188,7 +188,9 @@ def particle_update(
         matcher = get_matcher(config.matcher)
         best, best_score = matcher(
             score_fn,
-            coarse_start(read, local_points, mask, start, params, config),
+            coarse_start(read, local_points, mask, start, params, config,
+                         search_bound(config.matcher, prediction.mean, prediction.sqrt_cov, params,
+                                      params.coarse_radius)),
             prediction.sqrt_cov,
             params,
             config.match_iterations,

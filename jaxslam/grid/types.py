@@ -135,8 +135,11 @@ class GridSlamParams(NamedTuple):
     ``occ_saturation`` (steps at which a cell scores 1), ``score_sigma`` (m, width of
     the ``gaussian3`` kernel), ``coarse_sigma`` (m, its width in the coarse stage of
     ``config.coarse_iterations``; 0.2236 m is GMapping's own kernel,
-    ``exp(-d^2 / 0.05 m^2)``), ``log_odds_unit`` (natural log-odds per step, for
-    export).
+    ``exp(-d^2 / 0.05 m^2)``), ``coarse_radius`` (standard deviations of the
+    prediction: with SRUPF-GM's ellipse matcher the coarse stage stays within this
+    Mahalanobis distance of the predicted pose, as the matcher within
+    ``ellipse_radius``; :func:`jaxslam.grid.matching.search_bound`),
+    ``log_odds_unit`` (natural log-odds per step, for export).
     Matching: ``linear_step``, ``angular_step`` (GMapping's lstep/astep),
     ``ellipse_radius`` and ``ellipse_step`` (first step; both in standard
     deviations of the prediction), ``ellipse_floor`` (m/rad added to the
@@ -199,6 +202,7 @@ class GridSlamParams(NamedTuple):
     occ_saturation: Array
     score_sigma: Array
     coarse_sigma: Array
+    coarse_radius: Array
     log_odds_unit: Array
     linear_step: Array
     angular_step: Array
@@ -313,6 +317,7 @@ def default_params(
         "occ_saturation": 8.0,
         "score_sigma": 0.05,
         "coarse_sigma": 0.2236,
+        "coarse_radius": 5.0,
         "log_odds_unit": 0.2,
         "linear_step": 0.05,
         "angular_step": 0.05,

@@ -11,7 +11,14 @@ from jaxslam.datasets.laser_sim import office_world, raycast
 from jaxslam.grid.filter import coarse_start, score_model
 from jaxslam.grid.map import GridSpec, dense_reader, init_grids
 from jaxslam.grid.types import GridSlamParams, default_params
-from jaxslam.grid.matching import EllipseBound, get_matcher, hill_climb, hill_climb_match
+from jaxslam.grid.matching import (
+    EllipseBound,
+    ellipse_factor,
+    get_matcher,
+    hill_climb,
+    hill_climb_match,
+    search_bound,
+)
 from jaxslam.grid.score import (
     ScoreModel,
     beam_points,
@@ -203,20 +210,29 @@ def test_ellipse_bound_is_respected():
     assert float(best[0]) > 0.15  # it did move towards the target
 
 
+def coarse_case():
+    """The synthetic map's scan at its true pose, for the coarse-stage tests:
+    ``(true_pose, params, local points, mask, reader, config)``."""
+    from types import SimpleNamespace
+
+    grid, angles, z, true_pose = synthetic_map()
+    valid = np.isfinite(z)
+    pts = beam_points(jnp.asarray(np.where(valid, z, 0.0)), jnp.asarray(angles))
+    config = SimpleNamespace(
+        coarse_iterations=4, layout=WORLD_SPEC, score_kernel="gaussian3", free_check=False, sampling="posterior",
+        correction="pc", matcher="ellipse", match_iterations=8, refine_steps=0, constrain_matches=False,
+    )
+    return true_pose, params_for(angles), pts, jnp.asarray(valid), dense_reader(grid, WORLD_SPEC), config
+
+
 def test_coarse_start_widens_the_basin_of_the_narrow_match():
     """A coarse-to-fine match (:func:`jaxslam.grid.filter.coarse_start`) recovers more
     starts than the narrow climb alone, and more than as many narrow iterations: the
     gain is the wide kernel's, not the extra iterations'."""
     from types import SimpleNamespace
 
-    grid, angles, z, true_pose = synthetic_map()
-    prm = params_for(angles)
-    valid = np.isfinite(z)
-    pts = beam_points(jnp.asarray(np.where(valid, z, 0.0)), jnp.asarray(angles))
-    mask = jnp.asarray(valid)
-    read = dense_reader(grid, WORLD_SPEC)
+    true_pose, prm, pts, mask, read, config = coarse_case()
     score_fn = make_score_fn(read, pts, mask, jnp.zeros(3), WORLD_SPEC, score_model(prm), "gaussian3")
-    config = SimpleNamespace(coarse_iterations=4, layout=WORLD_SPEC, score_kernel="gaussian3", free_check=False)
     start = jnp.asarray(true_pose + 0.1)
     assert coarse_start(read, pts, mask, start, prm, SimpleNamespace(coarse_iterations=0)) is start
 
@@ -240,3 +256,56 @@ def test_coarse_start_widens_the_basin_of_the_narrow_match():
     narrow = recovered(prm._replace(coarse_sigma=prm.score_sigma), True)  # 4 + 8 narrow iterations
     assert wide >= 2 * fine, (fine, wide)
     assert wide >= narrow + 3, (narrow, wide)
+
+
+def test_coarse_start_stays_in_the_matchers_ellipse():
+    """The coarse stage bounded as the filters bound it (:func:`search_bound` with
+    ``coarse_radius``) never leaves its ellipse, where the unbounded wide climb does: a
+    prediction 0.15 m and 0.06 rad off the true pose with a covariance whose ellipse
+    reaches about 0.1 m and 0.05 rad, so the map's optimum lies outside it."""
+    true_pose, prm, pts, mask, read, config = coarse_case()
+    mean = jnp.asarray(true_pose + np.array([0.15, 0.0, 0.06]))
+    radius = float(prm.coarse_radius)
+    sqrt_cov = jnp.diag(jnp.asarray([0.1, 0.1, 0.05]) / radius)
+    bound = search_bound("ellipse", mean, sqrt_cov, prm, prm.coarse_radius)
+    assert search_bound("hill", mean, sqrt_cov, prm, prm.coarse_radius) is None
+    np.testing.assert_allclose(np.asarray(bound.sqrt_cov), np.asarray(ellipse_factor(sqrt_cov, prm)))
+    assert float(bound.radius) == radius
+    assert float(search_bound("ellipse", mean, sqrt_cov, prm).radius) == float(prm.ellipse_radius)
+
+    def mahalanobis(pose):
+        d = np.asarray(pose) - np.asarray(mean)
+        return float(np.linalg.norm(np.linalg.solve(np.asarray(bound.sqrt_cov), d)))
+
+    free = np.asarray(coarse_start(read, pts, mask, mean, prm, config))
+    held = np.asarray(coarse_start(read, pts, mask, mean, prm, config, bound))
+    assert mahalanobis(free) > radius, free  # the wide climb left the region
+    assert mahalanobis(held) <= radius + 1e-9, held
+    assert np.linalg.norm(held - np.asarray(mean)) > 0.02  # and still climbed inside it
+
+
+def test_srupf_particle_update_keeps_the_coarse_stage_in_its_ellipse():
+    """SRUPF-GM's particle update passes the bound to its coarse stage: with a tight
+    prediction 0.14 m and 0.08 rad off the map's optimum, the corrected pose stays within
+    ``max(coarse_radius, ellipse_radius)`` standard deviations of the prediction; with
+    the bound lifted (``coarse_radius`` 1e6) the wide climb carries it past that."""
+    from jaxslam.grid.srupf import particle_update, predict
+
+    true_pose, prm, pts, mask, read, config = coarse_case()
+    prm = prm._replace(q_linear=0.005, q_angular=0.005)
+    pose = jnp.asarray(true_pose + np.array([0.1, 0.1, 0.08]))
+    sqrt_cov = jnp.diag(jnp.full((3,), 1e-3))
+    control = jnp.zeros(3)
+    prediction = predict(pose, sqrt_cov, control, prm)
+    factor = np.asarray(ellipse_factor(prediction.sqrt_cov, prm))
+
+    def mahalanobis(p):
+        return float(np.linalg.norm(np.linalg.solve(factor, np.asarray(p) - np.asarray(prediction.mean))))
+
+    def corrected(params):
+        return particle_update(jax.random.PRNGKey(0), read, pose, sqrt_cov, control, pts, mask, params, config)[0]
+
+    reach = max(float(prm.coarse_radius), float(prm.ellipse_radius))
+    held, free = mahalanobis(corrected(prm)), mahalanobis(corrected(prm._replace(coarse_radius=jnp.asarray(1e6))))
+    assert held <= reach + 1e-6, (held, free)
+    assert free > reach, (held, free)
