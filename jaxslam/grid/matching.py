@@ -235,7 +235,7 @@ def search_bound(
     matcher (:func:`jaxslam.grid.filter.coarse_start`) takes the same ellipse with
     ``params.coarse_radius``.
     """
-    if matcher != "ellipse":
+    if matcher not in ("ellipse", ellipse_match):  # the name or the function (get_matcher takes both)
         return None
     factor = ellipse_factor(pose_sqrt_cov, params)
     r = params.ellipse_radius if radius is None else radius

@@ -269,6 +269,8 @@ def test_coarse_start_stays_in_the_matchers_ellipse():
     sqrt_cov = jnp.diag(jnp.asarray([0.1, 0.1, 0.05]) / radius)
     bound = search_bound("ellipse", mean, sqrt_cov, prm, prm.coarse_radius)
     assert search_bound("hill", mean, sqrt_cov, prm, prm.coarse_radius) is None
+    assert search_bound(hill_climb_match, mean, sqrt_cov, prm, prm.coarse_radius) is None
+    assert float(search_bound(get_matcher("ellipse"), mean, sqrt_cov, prm, prm.coarse_radius).radius) == radius
     np.testing.assert_allclose(np.asarray(bound.sqrt_cov), np.asarray(ellipse_factor(sqrt_cov, prm)))
     assert float(bound.radius) == radius
     assert float(search_bound("ellipse", mean, sqrt_cov, prm).radius) == float(prm.ellipse_radius)
