@@ -62,9 +62,13 @@ moves the pose back whatever the match there scores (it is not refused like an
 untrusted match below).
 
 A match that is not trusted keeps the odometry: the tracking falls back instead of
-jumping. Untrusted is a score under ``track_min_score`` (a featureless or changed
-scene, a scan that does not overlap the map, a map of a single scan). The score is
-the mean occupancy at the beam end points, and a wall seen once is half occupied,
+jumping. Before that, with ``config.recover_radius`` (an option, off by default), a
+refused match is searched again around the guess by :mod:`jaxslam.grid.recovery`, for
+an odometry that jumped (its module docstring has the rule and the measurements);
+where that finds a trusted, clearly better pose, it is taken. Untrusted is a score
+under ``track_min_score`` (a featureless or changed scene, a scan that does not
+overlap the map, a map of a single scan). The score is the mean occupancy at the beam
+end points, and a wall seen once is half occupied,
 so where the scans are far apart (a metre on the GMapping-corrected logs) even a
 right match scores 0.1-0.3: with the former threshold of 0.3, perturbed Edmonton
 was tracked at 7% of its scans and SRUPF-GM followed its odometry's heading drift
@@ -129,6 +133,7 @@ from jaxslam.grid.closure import close_loop, record_applied
 from jaxslam.grid.undone_closures import take_back
 from jaxslam.grid.filter import coarse_start, empty_info, match_geometry, particle_reader, score_model
 from jaxslam.grid.matching import hill_climb_match
+from jaxslam.grid.recovery import recover
 from jaxslam.grid.score import make_score_fn
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
 
@@ -179,6 +184,10 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
 
     matched, score = jax.lax.fori_loop(0, 2, attempt, (guess, jnp.full((), -jnp.inf, dtype)))
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
+    origin = guess
+    if config.recover_radius > 0:  # an odometry glitch: a wide match where this one is refused
+        matched, score, origin = recover(score_fn, read, local_points, mask, guess, matched, score, count,
+                                         increment, params, config)
     closed, conflict, memory = jnp.asarray(False), jnp.zeros((), dtype), state.closure_memory
     undo = jnp.zeros((4,), dtype)
     if config.closure:
@@ -190,7 +199,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
         undone = undo[0] > 0
         taken, closed = closed, closed | undone
     score = score / count
-    pose = constrained_pose(score_fn, matched, guess, score * count, count, params)
+    pose = constrained_pose(score_fn, matched, origin, score * count, count, params)
     accepted = score > params.track_min_score
     if config.closure:  # an undone closure is taken back whatever the match says
         pose = jnp.where(undone, matched, pose)

@@ -77,6 +77,11 @@ class GridSlamConfig:
             (``closure_reach_rate``, :mod:`jaxslam.grid.closure`): a second coarse
             stage, run only where that reach exceeds ``closure_radius``; at or below
             ``closure_radius`` there is none.
+        recover_radius: where the tracking's match is refused, search this far (m,
+            each axis) around its guess for the scan's pose, an odometry that jumped
+            (:mod:`jaxslam.grid.recovery`, which has the rule and what it was
+            measured to do; :data:`jaxslam.grid.recovery.RECOVER_RADIUS` is the radius
+            measured); 0, the default: off.
     """
 
     num_particles: int
@@ -101,6 +106,7 @@ class GridSlamConfig:
     closure_radius: float = 6.0
     closure_turn: float = 0.14
     closure_radius_far: float = 10.0
+    recover_radius: float = 0.0
 
     def __post_init__(self):
         choices = {
@@ -116,6 +122,8 @@ class GridSlamConfig:
             raise ValueError("num_particles, num_beams, max_points and match_stride must be >= 1")
         if self.coarse_iterations < 0:
             raise ValueError(f"coarse_iterations must be >= 0, got {self.coarse_iterations}")
+        if not self.recover_radius >= 0:
+            raise ValueError(f"recover_radius must be >= 0 (0: off), got {self.recover_radius}")
         if not self.window_range > 0:
             raise ValueError(f"window_range must be > 0, got {self.window_range}")
 
