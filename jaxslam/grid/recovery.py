@@ -64,7 +64,7 @@ v5.17). Session 68 measured it again over today's coarse stage (suite v5.22): at
 2 deg to scan 300, against four of ten without it), but the campus's later revisits,
 where every match scores 0.003-0.04 of the beams, still lose seeds (seed 5: 9.7 m, its
 heading turned 100 deg over scans 1706-1750 by the particles' climbs); elsewhere it
-changes one run (Orebro seed 1, 0.049 -> 0.072 m). So it stays an option, off by
+changes two runs (Orebro seeds 1 and 9, 0.049 -> 0.072 and 0.064 -> 0.061 m). So it stays an option, off by
 default (``config.recover_radius`` 0).
 
 Unlike a loop closure it needs no confirmation and no high score (``closure_min_score``
