@@ -166,7 +166,7 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
         maps=maps,
         status=status,
         motion=jnp.zeros((3,), dtype),
-        since_keyframe=jnp.zeros((4,), dtype),
+        since_keyframe=jnp.zeros((5,), dtype),
         closure_memory=jnp.zeros((MEMORY,), dtype),
     )
 

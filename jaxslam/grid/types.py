@@ -165,6 +165,9 @@ class GridSlamParams(NamedTuple):
     (information, per m^2) reaches this (:func:`jaxslam.grid.tracking.constrained_shift`);
     ``track_noise_scale``: the proposals' motion noise with tracking, as a fraction of
     the odometry model's (:func:`jaxslam.grid.tracking.tracked_noise_scale`);
+    ``track_refused_noise_scale``: that fraction instead for a keyframe whose interval
+    holds a refused tracking match (negative: ``track_noise_scale`` there too;
+    :func:`jaxslam.grid.tracking.keyframe_noise_scale`);
     ``track_turn`` (rad): the tracking match also scores its guess turned by this much
     either way and climbs again from the better one when it beats the converged match
     (0: never; a turn the odometry missed, see :func:`jaxslam.grid.tracking.track`).
@@ -225,6 +228,7 @@ class GridSlamParams(NamedTuple):
     track_min_score: Array
     track_min_curvature: Array
     track_noise_scale: Array
+    track_refused_noise_scale: Array
     track_turn: Array
     closure_trigger: Array
     closure_conflict: Array
@@ -340,6 +344,7 @@ def default_params(
         "track_min_score": 0.1,
         "track_min_curvature": 20.0,
         "track_noise_scale": 0.2,
+        "track_refused_noise_scale": -1.0,
         "track_turn": 0.15,
         "closure_trigger": 0.25,
         "closure_conflict": 0.0,
@@ -399,7 +404,7 @@ class GridSlamState(NamedTuple):
     maps: PagedMaps
     status: MapStatus
     motion: Array  # (3,) tracked motion since the last keyframe (jaxslam.grid.tracking)
-    since_keyframe: Array  # (4,) distance, rotation, time and scans since the last keyframe
+    since_keyframe: Array  # (5,) distance, rotation, time, scans and refused tracking matches since the last keyframe
     # (5,) loop closure (jaxslam.grid.closure): the candidate held (world correction (3,),
     # scans won) and the odometry distance (m) since the last closure
     closure_memory: Array

@@ -327,6 +327,32 @@ def test_keyframe_control_carries_the_tracked_noise_scale(sim):
         new, _ = step(jax.random.PRNGKey(1), state, control, scans[3], params, off)
         np.testing.assert_allclose(np.asarray(new.log_weights), 1.0, rtol=1e-12)
 
+        # track_refused_noise_scale (an option; negative, the default, is off): that scale
+        # for a keyframe whose interval holds a refused match, kappa otherwise.
+        assert float(default_params(sim.angles).track_refused_noise_scale) < 0
+        wide = params._replace(track_refused_noise_scale=np.float64(1.0))
+        new, info = step(jax.random.PRNGKey(1), state, control, scans[3], wide, config)
+        assert bool(info.track_accepted)
+        np.testing.assert_allclose(np.asarray(new.log_weights), 0.25, rtol=1e-12)
+        new, info = step(jax.random.PRNGKey(1), state, control, junk, wide, config)
+        assert not bool(info.track_accepted)
+        np.testing.assert_allclose(np.asarray(new.log_weights), 1.0, rtol=1e-12)
+        # The count runs between keyframes: a refused scan that is not a keyframe ...
+        never = wide._replace(linear_update=np.float64(1e9), angular_update=np.float64(1e9),
+                              temporal_update=np.float64(-1.0))
+        between, info = step(jax.random.PRNGKey(1), state, control, junk, never, config)
+        assert not bool(info.track_accepted)
+        np.testing.assert_allclose(np.asarray(between.since_keyframe)[3:], [1.0, 1.0])
+        # ... widens the next keyframe's proposals although its own match is trusted,
+        later = state._replace(since_keyframe=between.since_keyframe)
+        new, info = step(jax.random.PRNGKey(1), later, control, scans[3], wide, config)
+        assert bool(info.track_accepted)
+        np.testing.assert_allclose(np.asarray(new.log_weights), 1.0, rtol=1e-12)
+        # and the keyframe starts the count again.
+        np.testing.assert_array_equal(np.asarray(new.since_keyframe), 0.0)
+        new, _ = step(jax.random.PRNGKey(1), later, control, scans[3], params, config)
+        np.testing.assert_allclose(np.asarray(new.log_weights), 0.25, rtol=1e-12)
+
 
 def test_tracking_finds_a_turn_beyond_the_hill_climbs_reach(sim):
     """A turn the odometry missed by 0.15 rad: the hill climb from the guess alone
