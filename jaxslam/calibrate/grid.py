@@ -83,7 +83,7 @@ from jaxslam.driver import step_keys
 from jaxslam.grid import srupf
 from jaxslam.grid.filter import match_geometry, particle_reader, score_model
 from jaxslam.grid.score import scan_log_likelihood
-from jaxslam.grid.tracking import track, tracked_noise_scale
+from jaxslam.grid.tracking import keyframe_noise_scale, track
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
 
 # The noise levels calibrated by default (log space): Q's constant and
@@ -138,10 +138,11 @@ def predictive_log_likelihood(
     r""":math:`\log \hat p(z_t \mid z_{1:t-1})` of a keyframe (module docstring) and the
     particles' predictions, from the state before the step and the keyframe's motion.
     The motion-proportional noise is scaled as the filter scales it
-    (:func:`jaxslam.grid.tracking.tracked_noise_scale`), so the calibrated levels are the
-    parameters ``jaxslam run --params`` takes."""
+    (:func:`jaxslam.grid.tracking.keyframe_noise_scale`, from the matches refused since
+    the last keyframe before this scan), so the calibrated levels are the parameters
+    ``jaxslam run --params`` takes."""
     dtype = state.poses.dtype
-    scale = tracked_noise_scale(params, config)
+    scale = keyframe_noise_scale(params, config, state.since_keyframe[4])
     prediction = jax.vmap(srupf.predict, (0, 0, None, None, None))(state.poses, pose_sqrt_covs, motion, params, scale)
     eps = jax.random.normal(key, (config.num_particles, samples, 3), dtype)
     poses = prediction.mean[:, None, :] + jnp.einsum("pij,pkj->pki", prediction.sqrt_cov, eps)
@@ -187,8 +188,8 @@ def differentiable_scan_step(
     )
     # The factor update of the filter itself, from its keyframe control (as per_scan
     # computes it: a deterministic function of the same inputs) and corrected poses.
-    motion, *_ = track(fixed, control.increment, observation, fixed_params, config)
-    scale = tracked_noise_scale(params, config)
+    motion, _, accepted, *_ = track(fixed, control.increment, observation, fixed_params, config)
+    scale = keyframe_noise_scale(params, config, fixed.since_keyframe[4] + jnp.logical_not(accepted))
     prediction = jax.vmap(srupf.predict, (0, 0, None, None, None))(fixed.poses, carry.pose_sqrt_covs, motion, params,
                                                                    scale)
     noise = jnp.diag(params.match_noise.astype(prediction.mean.dtype))
