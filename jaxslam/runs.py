@@ -208,6 +208,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name, "loop_closure": bool(result.config.closure),
         "coarse_iterations": int(result.config.coarse_iterations),
         "recover_radius": float(result.config.recover_radius),
+        "track_refused_noise_scale": result.params.get("track_refused_noise_scale"),
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}), "load_s": load_s, "log_cache": log_cache,
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
@@ -382,9 +383,12 @@ def run(
 
         fingerprint = {k: v for k, v in run_args.items() if k not in ("chunk", "threads")}
         if kind == "laser":  # a default that changed between versions must not change a resumed run
-            from jaxslam.grid.experiment import coarse_default
+            from jaxslam.grid.experiment import coarse_default, recover_default
+            from jaxslam.grid.types import refused_noise_default
 
             fingerprint["coarse_iterations"] = coarse_default(algorithm)
+            fingerprint["recover_radius"] = recover_default(algorithm)
+            fingerprint["track_refused_noise_scale"] = refused_noise_default(algorithm)
         checkpoint = Checkpoint(out / "checkpoint.npz", every=checkpoint_every, fingerprint=fingerprint,
                                 resume=resume)
         if resume and not checkpoint.path.exists():

@@ -40,6 +40,7 @@ from jaxslam.grid.types import (
 )
 from jaxslam.grid.undone_closures import judge_at_end, reported_undo, take_back
 from jaxslam.grid.range_rule import apply_range_rule
+from jaxslam.grid.recovery import RECOVER_RADIUS
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
 from jaxslam.metrics.trajectory_io import se2_between
@@ -214,6 +215,16 @@ def coarse_default(algorithm: str) -> int:
     return 4 if algorithm == "srupf-gm" else 0
 
 
+def recover_default(algorithm: str) -> float:
+    """The recovery from odometry jumps by default (``config.recover_radius``,
+    :mod:`jaxslam.grid.recovery`): :data:`~jaxslam.grid.recovery.RECOVER_RADIUS` for
+    SRUPF-GM, with its wider proposals after refused matches
+    (:func:`jaxslam.grid.types.refused_noise_default`), measured together over the
+    whole robustness suite (``docs/results.md``, suite v5.23); 0 (off) for the other
+    filters, which they were not measured on."""
+    return RECOVER_RADIUS if algorithm == "srupf-gm" else 0.0
+
+
 def make_config(
     algorithm: str, particles: int, layout: PagedLayout, num_beams: int, max_points: int, **overrides
 ) -> GridSlamConfig:
@@ -230,6 +241,7 @@ def make_config(
         "constrain_matches": algorithm != "gmapping",
         "closure": closure_default(algorithm),
         "coarse_iterations": coarse_default(algorithm),
+        "recover_radius": recover_default(algorithm),
     }
     base.update(overrides)
     return GridSlamConfig(particles, layout, num_beams, max_points, **base)

@@ -64,8 +64,13 @@ v5.17). Session 68 measured it again over today's coarse stage (suite v5.22): at
 2 deg to scan 300, against four of ten without it), but the campus's later revisits,
 where every match scores 0.003-0.04 of the beams, still lose seeds (seed 5: 9.7 m, its
 heading turned 100 deg over scans 1706-1750 by the particles' climbs); elsewhere it
-changes two runs (Orebro seeds 1 and 9, 0.049 -> 0.072 and 0.064 -> 0.061 m). So it stays an option, off by
-default (``config.recover_radius`` 0).
+changes two runs (Orebro seeds 1 and 9, 0.049 -> 0.072 and 0.064 -> 0.061 m). So it stayed an option.
+Session 69 measured it with proposals 2.5 times wider (``track_refused_noise_scale``
+0.5 against ``track_noise_scale`` 0.2) after refused matches
+(:func:`jaxslam.grid.tracking.keyframe_noise_scale`): the campus's ten seeds all mapped
+(0.080-0.184 m, mean 0.117, against 0.998 and a worst seed of 2.639 m before, and
+GMapping C++'s 0.452 and 2.420 m), and together they are SRUPF-GM's default since
+(:func:`jaxslam.grid.experiment.recover_default`; ``docs/results.md``, suite v5.23).
 
 Unlike a loop closure it needs no confirmation and no high score (``closure_min_score``
 0.35, which the campus's right matches never reach): its reach is one increment's jump,
@@ -92,8 +97,8 @@ RECOVER_SLIP_SHARE = 0.3
 their rounding and from a turn that is not one arc)."""
 
 RECOVER_RADIUS = 1.5
-"""The search radius measured (m per axis; pass it as ``config.recover_radius``, whose
-default, 0, leaves the recovery off)."""
+"""The search radius measured (m per axis, ``config.recover_radius``: SRUPF-GM's default;
+0 leaves the recovery off)."""
 
 
 def slip(increment: Array) -> Array:

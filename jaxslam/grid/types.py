@@ -81,7 +81,8 @@ class GridSlamConfig:
             each axis) around its guess for the scan's pose, an odometry that jumped
             (:mod:`jaxslam.grid.recovery`, which has the rule and what it was
             measured to do; :data:`jaxslam.grid.recovery.RECOVER_RADIUS` is the radius
-            measured); 0, the default: off.
+            measured); 0: off. :func:`jaxslam.grid.experiment.make_config` sets
+            SRUPF-GM's default (:func:`jaxslam.grid.experiment.recover_default`).
     """
 
     num_particles: int
@@ -166,7 +167,8 @@ class GridSlamParams(NamedTuple):
     ``track_noise_scale``: the proposals' motion noise with tracking, as a fraction of
     the odometry model's (:func:`jaxslam.grid.tracking.tracked_noise_scale`);
     ``track_refused_noise_scale``: that fraction instead for a keyframe whose interval
-    holds a refused tracking match (negative: ``track_noise_scale`` there too;
+    holds a refused tracking match (:func:`refused_noise_default`; negative:
+    ``track_noise_scale`` there too;
     :func:`jaxslam.grid.tracking.keyframe_noise_scale`);
     ``track_turn`` (rad): the tracking match also scores its guess turned by this much
     either way and climbs again from the better one when it beats the converged match
@@ -290,6 +292,15 @@ def default_keyframes(algorithm: str) -> tuple[float, float, float]:
     return GMAPPING_KEYFRAMES if algorithm == "gmapping" else DEFAULT_KEYFRAMES
 
 
+def refused_noise_default(algorithm: str) -> float:
+    """``track_refused_noise_scale`` by default: 0.5 for SRUPF-GM (with the recovery
+    from odometry jumps, :func:`jaxslam.grid.experiment.recover_default`; measured over
+    the whole robustness suite, ``docs/results.md``, suite v5.23), -1 (off: the
+    proposals keep ``track_noise_scale`` after refused matches) for the other filters,
+    which it was not measured on."""
+    return 0.5 if algorithm == "srupf-gm" else -1.0
+
+
 def default_params(
     beam_angles,
     laser_offset=(0.0, 0.0, 0.0),
@@ -344,7 +355,7 @@ def default_params(
         "track_min_score": 0.1,
         "track_min_curvature": 20.0,
         "track_noise_scale": 0.2,
-        "track_refused_noise_scale": -1.0,
+        "track_refused_noise_scale": refused_noise_default(algorithm),
         "track_turn": 0.15,
         "closure_trigger": 0.25,
         "closure_conflict": 0.0,
@@ -478,5 +489,6 @@ __all__ = [
     "Scan",
     "as_odometry",
     "default_params",
+    "refused_noise_default",
     "noise_scale_of",
 ]

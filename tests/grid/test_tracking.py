@@ -291,9 +291,11 @@ def test_gmapping_correction_moves_only_along_constrained_directions(sim):
     assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096, coarse_iterations=0).coarse_iterations == 0
     assert make_config("gmapping", 2, layout, sim.num_beams, 4096).coarse_iterations == 0
     assert make_config("srupf-gm-npc", 2, layout, sim.num_beams, 4096).coarse_iterations == 0
-    # The recovery from an odometry jump: an option, off by default (docs/results.md, suite v5.22).
-    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).recover_radius == 0.0
+    # The recovery from an odometry jump: SRUPF-GM's default (docs/results.md, suite v5.23),
+    # off for the others.
+    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).recover_radius == RECOVER_RADIUS > 0
     assert make_config("gmapping", 2, layout, sim.num_beams, 4096).recover_radius == 0.0
+    assert make_config("srupf-gm-npc", 2, layout, sim.num_beams, 4096).recover_radius == 0.0
 
 
 def test_keyframe_control_carries_the_tracked_noise_scale(sim):
@@ -312,7 +314,9 @@ def test_keyframe_control_carries_the_tracked_noise_scale(sim):
     step = jax.jit(per_scan(recording_keyframe_step), static_argnums=5)
     with jax.enable_x64(True):
         state, scans, params, config = state_and_scans(sim)
-        params = params._replace(linear_update=np.float64(0.0), track_noise_scale=np.float64(0.25))
+        # track_refused_noise_scale off (negative) first: kappa after refused matches too.
+        params = params._replace(linear_update=np.float64(0.0), track_noise_scale=np.float64(0.25),
+                                 track_refused_noise_scale=np.float64(-1.0))
         # The state's particles are at scan 0 with no motion tracked since.
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         control = Odometry(true_step, 1.0, 0.1)
@@ -327,9 +331,11 @@ def test_keyframe_control_carries_the_tracked_noise_scale(sim):
         new, _ = step(jax.random.PRNGKey(1), state, control, scans[3], params, off)
         np.testing.assert_allclose(np.asarray(new.log_weights), 1.0, rtol=1e-12)
 
-        # track_refused_noise_scale (an option; negative, the default, is off): that scale
-        # for a keyframe whose interval holds a refused match, kappa otherwise.
-        assert float(default_params(sim.angles).track_refused_noise_scale) < 0
+        # track_refused_noise_scale (negative: off): that scale for a keyframe whose
+        # interval holds a refused match, kappa otherwise. SRUPF-GM's default is 0.5,
+        # the others' off (docs/results.md, suite v5.23).
+        assert float(default_params(sim.angles).track_refused_noise_scale) == 0.5
+        assert float(default_params(sim.angles, algorithm="gmapping").track_refused_noise_scale) < 0
         wide = params._replace(track_refused_noise_scale=np.float64(1.0))
         new, info = step(jax.random.PRNGKey(1), state, control, scans[3], wide, config)
         assert bool(info.track_accepted)
@@ -387,16 +393,15 @@ def test_tracking_finds_a_turn_beyond_the_hill_climbs_reach(sim):
 def test_tracking_recovers_from_an_odometry_glitch(sim):
     """An increment 0.8 m off sideways (an odometry that jumped; the perturbed campus's
     reference has twelve such steps): the match from its guess is refused. With the
-    recovery (config.recover_radius, an option, jaxslam.grid.recovery) the search around the guess
+    recovery (config.recover_radius, SRUPF-GM's default, jaxslam.grid.recovery) the search around the guess
     finds the scan's pose and the tracked motion is the true one within a few
     centimetres; without it the odometry's jump is kept exactly. A scan that fits
     nowhere stays refused with the recovery too: no jump."""
     track = jax.jit(_track, static_argnums=4)
     with jax.enable_x64(True):
         state, scans, params, config = state_and_scans(sim)
-        off = config
-        assert off.recover_radius == 0.0  # an option, off by default
-        config = dataclasses.replace(config, recover_radius=RECOVER_RADIUS)
+        assert config.recover_radius == RECOVER_RADIUS  # SRUPF-GM's default
+        off = dataclasses.replace(config, recover_radius=0.0)
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         glitch = true_step + np.array([0.0, 0.8, 0.03])
         motion, score, accepted, *_ = track(state, glitch, scans[3], params, off)
