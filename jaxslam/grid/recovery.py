@@ -67,9 +67,10 @@ heading turned 100 deg over scans 1706-1750 by the particles' climbs); elsewhere
 changes two runs (Orebro seeds 1 and 9, 0.049 -> 0.072 and 0.064 -> 0.061 m). So it stayed an option.
 Session 69 measured it with proposals 2.5 times wider (``track_refused_noise_scale``
 0.5 against ``track_noise_scale`` 0.2) after refused matches
-(:func:`jaxslam.grid.tracking.keyframe_noise_scale`): the campus's ten seeds all mapped
+(:func:`jaxslam.grid.tracking.keyframe_noise_scale`): the campus's seeds 0-9 all mapped
 (0.080-0.184 m, mean 0.117, against 0.998 and a worst seed of 2.639 m before, and
-GMapping C++'s 0.452 and 2.420 m), and together they are SRUPF-GM's default since
+GMapping C++'s 0.452 and 2.420 m; seeds 10-19 0.850 m mean, three of them 1.7-2.1 m),
+and together they are SRUPF-GM's default since
 (:func:`jaxslam.grid.experiment.recover_default`; ``docs/results.md``, suite v5.23).
 
 Unlike a loop closure it needs no confirmation and no high score (``closure_min_score``

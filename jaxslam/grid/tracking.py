@@ -304,7 +304,9 @@ def keyframe_noise_scale(params: GridSlamParams, config: GridSlamConfig, refused
     v5.23): relations error mean over the seeds 0.117 m, worst seed 0.184 m at 0.5,
     against 1.046 / 4.890 m at 1 (the odometry's full noise: in sparse stretches, whose
     scans cannot pull a particle back, keyframes 9-12 deg off) and 0.998 / 2.639 m
-    without either (GMapping C++: 0.452 / 2.420 m).
+    without either (GMapping C++: 0.452 / 2.420 m). Seeds 10-19 at 0.5 were less lucky
+    (0.850 m mean, three seeds of 1.7-2.1 m), and at 0.35 and 0.7 one or two of seeds
+    0-4 are lost: a scale between the two ends, not a sharp optimum.
     """
     kappa = tracked_noise_scale(params, config)
     if not config.tracking:
