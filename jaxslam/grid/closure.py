@@ -479,22 +479,15 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
            & (conflict_sum > jnp.asarray(params.closure_undo_fast, dtype) * conflict_count)))
     watching = watching & ~undo & (travelled < jnp.asarray(params.closure_watch, dtype))
 
-    def undone():
-        start = se2.compose(se2.inverse(applied.astype(dtype)), matched)
-        return hill_climb_match(score_fn, start, None, params, config.match_iterations)
-
-    matched, score = jax.lax.cond(undo, undone, lambda: (matched, score))
-    travelled = jnp.where(undo, travelled + before, travelled)
     holding = held[3] > 0
+    matched, score, followed, followed_score = undo_and_follow(
+        score_fn, matched, score, undo, holding, applied.astype(dtype), held[:3].astype(dtype), params, config)
+    travelled = jnp.where(undo, travelled + before, travelled)
     # No search while the last closure is watched (unless ``closure_nest``): a closure
     # taken inside another's watch would restart it, and the first would never be judged.
     nest_ok = ~watching | (jnp.asarray(params.closure_nest, dtype) > 0)
     triggered = ~undo & ~holding & nest_ok & (score / count < jnp.asarray(params.closure_trigger, dtype)) & (
         conflict >= jnp.asarray(params.closure_conflict, dtype))
-
-    def follow():
-        start = se2.compose(held[:3].astype(dtype), matched)
-        return hill_climb_match(score_fn, start, None, params, config.match_iterations)
 
     def coarse(radius=None, reach=None):
         return coarse_candidates(read, frame, local_points, weights, laser_offset, matched, params, config,
@@ -511,7 +504,7 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
 
     pose, found = jax.lax.cond(
         holding,
-        follow,
+        lambda: (followed, followed_score),
         lambda: jax.lax.cond(triggered, wide, lambda: (matched, score)),
     )
     correction = se2.compose(pose, se2.inverse(matched))
@@ -546,6 +539,37 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     return jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, taken_back, conflict, memory
 
 
+def undo_and_follow(score_fn, matched: Array, score: Array, undo: Array, holding: Array, applied: Array,
+                    held: Array, params, config) -> tuple[Array, Array, Array, Array]:
+    r"""The two climbs of :func:`close_loop`, in one pass each of one climb (the program
+    holds the climb once): where ``undo``, the local match climbs again from
+    :math:`A^{-1} \oplus x_0` (``applied`` :math:`A`); then, where ``holding``, the held
+    candidate :math:`C \oplus x_0` (``held`` :math:`C`) climbs from the match after that.
+    Returns ``(matched, score, followed, followed_score)``: the match after the undo, and
+    the followed candidate (the match itself where nothing is held).
+
+    Each copy of a climb in the chunk runner's program is a score kernel of its own for
+    XLA to compile: the two climbs as two branches took about 1.6 s more XLA
+    compilation (13.6 against 12.0 s on one core, Intel's chunk runner, six alternating
+    cold processes each), for the same runs bit for bit (``docs/results.md``, speed,
+    session 70)."""
+
+    def one(i, carry):
+        matched, score, followed, followed_score = carry
+        first = i == 0
+        start = jnp.where(first, se2.compose(se2.inverse(applied), matched), se2.compose(held, matched))
+
+        def climbed():
+            pose, value = hill_climb_match(score_fn, start, None, params, config.match_iterations)
+            return (jnp.where(first, pose, matched), jnp.where(first, value, score),
+                    jnp.where(first, followed, pose), jnp.where(first, followed_score, value))
+
+        return jax.lax.cond(jnp.where(first, undo, holding), climbed, lambda: carry)
+
+    matched, score, followed, followed_score = jax.lax.fori_loop(0, 2, one, (matched, score, matched, score))
+    return matched, score, jnp.where(holding, followed, matched), jnp.where(holding, followed_score, score)
+
+
 def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
     """``memory`` with :math:`A`, the correction the tracking applied for a closure
     just ``taken`` (its pose over the local match, after the tracking's constraint),
@@ -556,5 +580,5 @@ def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
 __all__ = [
     "BEAM_STRIDE", "FAST_SHARE", "MEMORY", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
     "candidate_scores", "close_loop", "closure_search", "coarse_candidates", "coarse_window", "conflict_fraction",
-    "record_applied", "refine_best", "window_half",
+    "record_applied", "refine_best", "undo_and_follow", "window_half",
 ]
