@@ -19,9 +19,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.driver import best_particle, chunk_runner, step_keys
+from jaxslam.driver import best_particle, chunk_runner
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.params import Config, Params
+from jaxslam.keys import seed_key, split_keys
 from jaxslam.models.vehicle import CarGeometry
 from jaxslam.progress import run_scan_chunked
 
@@ -135,12 +136,12 @@ def run_landmark_slam(
     if not isinstance(params, Params):
         params = params_for(sequence, **(params or {}))
     cfg = Config(num_particles=particles, proposal=ALGORITHMS[algorithm], **(config or {}))
-    key = jax.random.PRNGKey(seed)
+    key = seed_key(seed)  # jax.random.PRNGKey(seed), made on the host (jaxslam.keys)
     steps = int(np.shape(sequence.controls)[0])
     state = feature_filter.init(key, params, cfg, jnp.zeros(3, dtype))
     params_arr = feature_filter.cast_params(params, dtype)
     xs = (
-        step_keys(key, steps),
+        split_keys(key, steps),
         jnp.asarray(sequence.controls, dtype),
         feature_filter.Observation(jnp.asarray(sequence.observations, dtype), jnp.asarray(sequence.obs_mask, bool)),
     )

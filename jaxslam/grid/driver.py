@@ -2,7 +2,8 @@
 
 * The filters' ``run`` is :func:`jaxslam.driver.scan_runner` of their ``step``, the
   driver shared with the landmark filter (one key per keyframe from
-  :func:`jaxslam.driver.step_keys`, the one way step keys are derived).
+  :func:`jaxslam.driver.step_keys`, the one way step keys are derived; the host loop
+  makes the same bits with :func:`jaxslam.keys.split_keys`).
 * :func:`run_filter` — the host loop used by :func:`jaxslam.grid.experiment.run_grid_slam`,
   the CLI, the notebooks and the benchmarks: ``init`` (jitted), then the keyframes
   in jitted chunks with a progress bar (:func:`jaxslam.progress.run_scan_chunked`).
@@ -27,11 +28,11 @@ import numpy as np
 
 from jaxslam.compiler import jit_with, options
 from jaxslam.driver import chunk_runner as shared_chunk_runner
-from jaxslam.driver import step_keys
 from jaxslam.executables import compile_runner, runner_tag
 from jaxslam.grid.filter import init, reset_status
 from jaxslam.grid.paged import PagedLayout, grow
 from jaxslam.grid.types import GridSlamConfig
+from jaxslam.keys import split_keys
 from jaxslam.progress import log, run_scan_chunked
 
 
@@ -176,7 +177,7 @@ def run_filter(
     """
     stats = RunStats()
     steps = observations.ranges.shape[0]
-    keys = step_keys(key, steps)
+    keys = split_keys(key, steps)  # jaxslam.driver.step_keys's bits, made on the host (jaxslam.keys)
     init_key = key  # init is deterministic; it takes the key only for the protocol
     xs = (keys, controls, observations)
     if checkpoint is not None and checkpoint.resume and checkpoint.path.exists():

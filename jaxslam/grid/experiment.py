@@ -43,6 +43,7 @@ from jaxslam.grid.range_rule import apply_range_rule
 from jaxslam.grid.recovery import RECOVER_RADIUS
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
+from jaxslam.keys import seed_key
 from jaxslam.metrics.trajectory_io import se2_between
 
 ALGORITHMS = algorithms("laser")
@@ -362,7 +363,7 @@ def run_grid_slam(
     unit = float(prm.log_odds_unit)
     params_record = {k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"}
     state, ys, cfg, stats = run_filter(
-        module.scan_step, jax.random.PRNGKey(seed), prm, cfg, first, np.asarray(odom[0], real), controls,
+        module.scan_step, seed_key(seed), prm, cfg, first, np.asarray(odom[0], real), controls,
         observations, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress,
         checkpoint=checkpoint, unit="scan",
     )
