@@ -71,7 +71,7 @@ from jaxslam.datasets.carmen_read import read_lines_fast, read_lines_slow
 from jaxslam.datasets.geometry import se2_between, wrap_angle
 from jaxslam.datasets.keyframes import select_keyframes
 from jaxslam.datasets.no_return import detect_no_return
-from jaxslam.datasets.odometry_repair import repair_reverse_odometry
+from jaxslam.datasets.odometry_repair import repair_reverse_odometry, repair_stale_odometry
 from jaxslam.datasets.paths import DataFormatError
 from jaxslam.datasets.reader import read_bytes
 
@@ -121,7 +121,8 @@ class CarmenLog:
             :func:`load_carmen` for its source.
         laser_offset: (3,) float64 ``(x, y, theta)`` of the laser in the robot frame.
         odom_poses: (S, 3) float64 robot odometry pose at each scan; repaired where
-            the log's poses lose the sign of reversing (``odometry_repair``).
+            the log's poses lose the sign of reversing, and spread over their time
+            where they are stale (``odometry_repair``).
         laser_poses: (S, 3) float64 laser pose logged with each scan (as logged, not
             repaired), or None.
         odom_times: (N,) float64 ``ipc_timestamp`` of the ODOM messages.
@@ -141,7 +142,9 @@ class CarmenLog:
         odom_speeds: (N,) float64 logged translational velocity ``tv`` of the ODOM
             messages, or None.
         odometry_repair: what the reversing check decided
-            (:func:`jaxslam.datasets.odometry_repair.repair_reverse_odometry`).
+            (:func:`jaxslam.datasets.odometry_repair.repair_reverse_odometry`); under
+            ``"stale"`` the stale stretches found and repaired
+            (:func:`jaxslam.datasets.odometry_repair.repair_stale_odometry`).
     """
 
     path: Path
@@ -220,9 +223,11 @@ def load_carmen(
         detect_sentinel: look for a "no return" sentinel pile when ``max_range`` is
             not given (see :func:`detect_no_return`; the decision is in ``no_return``).
         repair_odometry: check the odometry poses against the logged velocities and
-            repair increments that lose the sign of reversing
-            (:mod:`jaxslam.datasets.odometry_repair`; the decision is in
-            ``odometry_repair``, the count in ``stats["odometry_sign_repaired"]``).
+            repair increments that lose the sign of reversing, and spread stale
+            stretches (a pose repeated while readings did not arrive, then the whole
+            motion in one scan) over their time (:mod:`jaxslam.datasets.odometry_repair`;
+            the decisions are in ``odometry_repair``, the counts in
+            ``stats["odometry_sign_repaired"]`` and ``stats["odometry_stale_repaired"]``).
 
     Returns:
         The log's scans, poses, masks and counters.
@@ -355,6 +360,10 @@ def load_carmen(
         odom_poses, repair = repair_reverse_odometry(odom_poses, lines.ipc, lines.odom_times, lines.odom_speeds)
         if repair["repaired"]:
             collector.count("odometry_sign_repaired", repair["sign_lost"])
+        odom_poses, stale = repair_stale_odometry(odom_poses, lines.ipc)
+        repair = {**repair, "stale": stale}
+        if stale["repaired"]:
+            collector.count("odometry_stale_repaired", stale["repaired_scans"])
     else:
         repair = {"checked": False, "reason": "repair off", "repaired": False}
 
