@@ -253,10 +253,16 @@ refinement in each stage, took 18.4 s against 11.3 s).
 
 Cost: one window of :math:`(2(r + R)/\rho)^2` cells (``r`` =
 :data:`SEARCH_REACH`; beams beyond it take no part in the coarse stage), about
-:math:`1.1 \cdot 10^6` reads at 5 cm (:math:`0.9 \cdot 10^6` at R = 4 m), and
-:math:`(2\Theta/\delta + 1)(2R/h + 1)^2` candidates of half the matched beams: 13-20 ms
-on one core of the 2-core machine at R = 4 m, for the scans under the trigger only
-(the whole runs' times at 6 m are in ``docs/results.md``'s session 44 section).
+:math:`1.1 \cdot 10^6` cells at 5 cm, copied a tile at a time from the paged map, and
+:math:`(2\Theta/\delta + 1)(2R/h + 1)^2` candidates of half the matched beams, scored as
+sums of shifted blocks of the coarse map (:func:`candidate_scores`): 1.3-2.3 ms for
+63,000 candidates on one core of the 2-core machine, where reading each candidate's
+end points one by one took 9-18 ms (session 72), for the scans under the trigger
+only. Logs whose matches score low for long stretches trigger it on a large share of
+their scans: on fr-clinic (long-range scans, matches at 0.1-0.3 of the beams, no
+closure taken in the whole log) the filter loop took 160.6 s before and 90.1 s after
+(30 particles, one core each, the two runs side by side), and 60.0 s with the search
+off, the same run bit for bit.
 
 What the reports do on the host with the undos recorded here (the path reported after
 an undone closure, the judgment of a closure still watched at the end) is
@@ -319,7 +325,9 @@ def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation)
     cols = c0[0] + jnp.arange(2 * half, dtype=jnp.int32)
     rows = c0[1] + jnp.arange(2 * half, dtype=jnp.int32)
     sat = jnp.asarray(saturation, dtype)
-    occ = jnp.clip(read(cols[None, :], rows[:, None]).astype(dtype), 0, sat) / sat
+    block = getattr(read, "block", None)  # a paged map copies whole tiles (jaxslam.grid.paged.reader)
+    cells = block(c0[0], c0[1], 2 * half, 2 * half) if block is not None else read(cols[None, :], rows[:, None])
+    occ = jnp.clip(cells.astype(dtype), 0, sat) / sat
     n = 2 * half // POOL
     coarse = occ.reshape(n, POOL, n, POOL).max(axis=(1, 3))
     coarse = jax.lax.reduce_window(coarse, jnp.asarray(0, dtype), jax.lax.max, (3, 3), (1, 1), "SAME")
@@ -334,22 +342,63 @@ def window_half(frame, radius: float) -> int:
 
 
 def candidate_scores(coarse: Array, corner: Array, cell: float, start: Array, local_points: Array, weights: Array,
-                     laser_offset: Array, turns: Array, shifts: Array) -> Array:
-    """``S`` of every candidate, ``(turns, shifts_y, shifts_x)`` (unnormalised)."""
+                     laser_offset: Array, turns: Array, m: int) -> Array:
+    r"""``S`` of every candidate, ``(turns, 2m + 1, 2m + 1)`` ``[turn, y shift, x shift]``
+    (unnormalised): the shifts are ``-m .. m`` steps of :data:`SHIFT_CELLS` coarse cells.
+
+    For a heading, end point :math:`b` lies in coarse cell :math:`(c_b, r_b)` at the
+    unshifted pose; at the shift :math:`(i, j)` steps it lies in
+    :math:`(c_b + h i,\ r_b + h j)`, :math:`h` = :data:`SHIFT_CELLS` (the candidates
+    move by whole coarse cells), so
+
+    .. math:: S_{j,i} = \sum_b w_b\, \bar o(r_b + h j,\ c_b + h i)
+        = \sum_b w_b\, T_b[j, i],
+
+    with :math:`T_b` the :math:`(2m+1)^2` block of the coarse map from
+    :math:`(r_b - hm, c_b - hm)` with stride :math:`h`. The coarse map is split into its
+    :math:`h^2` phases (every :math:`h`-th row and column from each offset), where that
+    block is contiguous, and zero-padded so that every block lies inside (cells outside
+    the window read 0, as unknown). The scores are a sum of :math:`B` slices instead of
+    :math:`(2m+1)^2 B` gathers: 63,000 candidates of 90 (180) beams took 8.9 (18.0) ms
+    as gathers and 1.3 (2.3) ms so on one core of the 2-core machine
+    (``python benchmarks/closure_search_cost.py``, which keeps the gathers). Under the
+    defaults (weights 0 or 1 within :data:`SEARCH_REACH`, the coarse values multiples of
+    ``1 / occ_saturation`` = 1/8) every partial sum is exact, so the order of the sum
+    does not change a score; and an end point moved by whole cells lies where the
+    gathers, which added the shift to it in floating point, found it, except within
+    rounding of a cell edge. Whole runs were the same bit for bit (session 72: 13 runs of
+    MIT Killian, Intel and the perturbed campus, infinite corridor and Belgioioso, with
+    2 to 9 closures each, and fr-clinic).
+    """
     dtype = start.dtype
     n = coarse.shape[0]
+    h = SHIFT_CELLS
+    side = 2 * m + 1
+    margin = h * side  # a block that starts in the margin lies wholly in it or in the window
+    padded_side = n + 2 * margin
+    padded_side += (-padded_side) % h
+    padded = jnp.zeros((padded_side, padded_side), coarse.dtype).at[margin:margin + n, margin:margin + n].set(coarse)
+    q = padded_side // h
+    phases = padded.reshape(q, h, q, h).transpose(1, 3, 0, 2).reshape(h * h, q, q)
     inv = jnp.asarray(1.0 / cell, dtype)
+    w = jnp.where(weights > 0, weights, 0.0).astype(dtype)
 
     def per_turn(turn):
         sensor = se2.compose(start.at[2].add(turn), laser_offset.astype(dtype))
         world = se2.transform_points(sensor, local_points.astype(dtype))
-        u = (world[:, 0] - corner[0]) * inv
-        v = (world[:, 1] - corner[1]) * inv
-        cols = jnp.floor(u[None, None, :] + shifts[None, :, None] * inv).astype(jnp.int32)
-        rows = jnp.floor(v[None, None, :] + shifts[:, None, None] * inv).astype(jnp.int32)
-        inside = (cols >= 0) & (cols < n) & (rows >= 0) & (rows < n)
-        value = coarse[jnp.clip(rows, 0, n - 1), jnp.clip(cols, 0, n - 1)]
-        return jnp.sum(jnp.where(inside & (weights > 0), weights * value, 0.0), -1)
+        col = jnp.floor((world[:, 0] - corner[0]) * inv).astype(jnp.int32) - h * m
+        row = jnp.floor((world[:, 1] - corner[1]) * inv).astype(jnp.int32) - h * m
+        # a block that starts farther out than the margin lies wholly outside the window
+        col = jnp.clip(col, -margin, n) + margin
+        row = jnp.clip(row, -margin, n) + margin
+        phase = h * (row % h) + col % h
+
+        def add(b, total):
+            block = jax.lax.dynamic_slice(phases[phase[b]], (row[b] // h, col[b] // h), (side, side))
+            return total + w[b] * block
+
+        # six beams per iteration of the loop: 2.2 -> 1.3 ms for 90 beams (one core)
+        return jax.lax.fori_loop(0, w.shape[0], add, jnp.zeros((side, side), dtype), unroll=6)
 
     return jax.lax.map(per_turn, turns)
 
@@ -378,7 +427,7 @@ def coarse_candidates(read: CellReader, frame, local_points: Array, weights: Arr
     points = local_points[idx]
     ranges = jnp.sqrt(jnp.sum(points * points, -1))
     w = jnp.where(ranges <= SEARCH_REACH, jnp.asarray(weights, dtype)[idx], 0.0)
-    scores = candidate_scores(coarse, corner, cell, start, points, w, laser_offset, turns, shifts)
+    scores = candidate_scores(coarse, corner, cell, start, points, w, laser_offset, turns, m)
     if reach is not None:  # the near search's square, and the disc of the reach around it
         near = jnp.abs(shifts) <= float(config.closure_radius)
         within = (near[:, None] & near[None, :]) | (jnp.hypot(shifts[:, None], shifts[None, :]) <= reach)

@@ -12,7 +12,7 @@ import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.grid.closure import (
-    MEMORY, POOL, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, undo_and_follow, window_half,
+    MEMORY, POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, undo_and_follow, window_half,
 )
 from jaxslam.grid.undone_closures import judge_at_end, put_back, reported_undo, take_back
 from jaxslam.grid.map import GridSpec, dense_reader
@@ -48,35 +48,69 @@ def test_coarse_window_is_the_pooled_and_dilated_occupancy():
     np.testing.assert_allclose(np.asarray(corner), [spec.origin_x, spec.origin_y] + c0 * spec.resolution, atol=1e-9)
 
 
+def _numpy_candidate_scores(coarse, corner, cell, start, offset, points, weights, turns, m):
+    """The search's definition in float64, one candidate and beam at a time: at the
+    shift of (i, j) steps an end point lies SHIFT_CELLS * (i, j) coarse cells from its
+    cell at the unshifted pose."""
+    n = coarse.shape[0]
+    want = np.zeros((len(turns), 2 * m + 1, 2 * m + 1))
+    for k, turn in enumerate(turns):
+        pose = np.asarray(start, np.float64) + [0.0, 0.0, turn]
+        sensor = se2_compose(pose[None], np.asarray(offset, np.float64)[None])[0]
+        c, s = math.cos(sensor[2]), math.sin(sensor[2])
+        world = sensor[:2] + np.asarray(points, np.float64) @ np.array([[c, s], [-s, c]])
+        for b in range(points.shape[0]):
+            col0 = math.floor((world[b, 0] - corner[0]) / cell)
+            row0 = math.floor((world[b, 1] - corner[1]) / cell)
+            for i in range(-m, m + 1):
+                for j in range(-m, m + 1):
+                    col, row = col0 + SHIFT_CELLS * j, row0 + SHIFT_CELLS * i
+                    if weights[b] > 0 and 0 <= col < n and 0 <= row < n:
+                        want[k, i + m, j + m] += weights[b] * coarse[row, col]
+    return want
+
+
 def test_candidate_scores_equal_a_numpy_loop():
+    """Any weights and coarse values, end points inside, across and beyond the window's
+    edges (float64)."""
     rng = np.random.default_rng(1)
-    n, cell = 30, 0.1
+    n, cell, m = 30, 0.1, 3
     coarse = rng.uniform(0, 1, (n, n))
     corner = np.array([-1.5, -1.0])
     start = np.array([0.1, 0.4, 0.3])
     offset = np.array([0.2, 0.05, 0.01])
-    points = rng.uniform(-1.2, 1.2, (17, 2))
+    points = rng.uniform(-2.5, 2.5, (17, 2))
     weights = rng.uniform(0, 1, 17) * (rng.uniform(size=17) > 0.2)
     turns = np.array([-0.05, 0.0, 0.04])
-    shifts = np.array([-0.4, -0.2, 0.0, 0.2, 0.4])
     with jax.enable_x64(True):
-        got = np.asarray(jax.jit(candidate_scores, static_argnums=2)(
+        got = np.asarray(jax.jit(candidate_scores, static_argnums=(2, 8))(
             jnp.asarray(coarse), jnp.asarray(corner), cell, jnp.asarray(start), jnp.asarray(points),
-            jnp.asarray(weights), jnp.asarray(offset), jnp.asarray(turns), jnp.asarray(shifts)))
-    want = np.zeros((3, 5, 5))
-    for k, turn in enumerate(turns):
-        pose = start + [0.0, 0.0, turn]
-        sensor = se2_compose(pose[None], offset[None])[0]
-        c, s = math.cos(sensor[2]), math.sin(sensor[2])
-        world = sensor[:2] + points @ np.array([[c, s], [-s, c]])
-        for i, dy in enumerate(shifts):
-            for j, dx in enumerate(shifts):
-                for b in range(points.shape[0]):
-                    col = math.floor((world[b, 0] + dx - corner[0]) / cell)
-                    row = math.floor((world[b, 1] + dy - corner[1]) / cell)
-                    if weights[b] > 0 and 0 <= col < n and 0 <= row < n:
-                        want[k, i, j] += weights[b] * coarse[row, col]
+            jnp.asarray(weights), jnp.asarray(offset), jnp.asarray(turns), m))
+    want = _numpy_candidate_scores(coarse, corner, cell, start, offset, points, weights, turns, m)
+    assert want.max() > 0
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_candidate_scores_are_exact_under_the_default_weights():
+    """Weights 0 or 1 and coarse values k/8 (``occ_saturation`` 8): every partial sum is
+    exact in float32, so the scores equal the float64 definition bit for bit, whatever
+    order the sum takes. End points are kept off the coarse cells' edges, where float32
+    and float64 could put them in different cells."""
+    rng = np.random.default_rng(2)
+    n, cell, m = 64, 0.1, 6
+    coarse = (rng.integers(0, 9, (n, n)) * (rng.uniform(size=(n, n)) < 0.3) / 8.0).astype(np.float32)
+    corner = np.array([-3.2, -3.2], np.float32)
+    start = np.array([0.05, -0.1, 0.0], np.float32)
+    cells = rng.integers(-40, 40, (90, 2)) + rng.uniform(0.05, 0.95, (90, 2))
+    points = (cells * cell).astype(np.float32)
+    weights = (rng.uniform(size=90) > 0.2).astype(np.float32)
+    turns = np.zeros(1, np.float32)
+    got = np.asarray(jax.jit(candidate_scores, static_argnums=(2, 8))(
+        jnp.asarray(coarse), jnp.asarray(corner), cell, jnp.asarray(start), jnp.asarray(points),
+        jnp.asarray(weights), jnp.zeros(3, jnp.float32), jnp.asarray(turns), m))
+    want = _numpy_candidate_scores(coarse.astype(np.float64), corner, cell, start, np.zeros(3), points, weights, turns, m)
+    assert want.max() >= 5
+    np.testing.assert_array_equal(got, want.astype(np.float32))
 
 
 def test_conflict_counts_end_points_in_known_free_space_only():
