@@ -8,7 +8,9 @@ Usage:
 Cases (``--cases all`` for every one; default ``intel-srupf-30``):
 
     intel-srupf-30, intel-srupf-100, intel-gmapping-30, intel-gmapping-100,
-    killian-srupf-30, vp-erb-100, vp-erb-1000
+    killian-srupf-30, clinic-srupf-30, vp-erb-100, vp-erb-1000
+
+(``clinic-srupf-30``: the raw fr-clinic log, long-range scans and no relations to score.)
 
 Every jaxslam run is a fresh ``python -m jaxslam.cli run ... --no-progress`` process
 (plots on, as a user runs it) under ``nice -n 10``. ``cold``: an empty compilation
@@ -60,6 +62,7 @@ CASES = {
     "intel-gmapping-30": ("intel", "gmapping", 30, "intel"),
     "intel-gmapping-100": ("intel", "gmapping", 100, "intel"),
     "killian-srupf-30": ("mit-killian", "srupf-gm", 30, "mit-killian"),
+    "clinic-srupf-30": ("fr-clinic", "srupf-gm", 30, "fr-clinic"),
     "vp-erb-100": ("victoria-park", "erb-upf", 100, None),
     "vp-erb-1000": ("victoria-park", "erb-upf", 1000, None),
 }
