@@ -312,7 +312,7 @@ MEMORY = 15
 
 
 def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation) -> tuple[Array, Array]:
-    """The coarse map around ``centre (2,)`` (world, m): ``(coarse (n, n) [row, col],
+    r"""The coarse map around ``centre (2,)`` (world, m): ``(coarse (n, n) [row, col],
     corner (2,))``, with ``corner`` the world position of coarse cell ``(0, 0)``'s corner.
 
     ``half`` (static) is the window's half side in fine cells, a multiple of
@@ -347,12 +347,12 @@ def candidate_scores(coarse: Array, corner: Array, cell: float, start: Array, lo
     (unnormalised): the shifts are ``-m .. m`` steps of :data:`SHIFT_CELLS` coarse cells.
 
     For a heading, end point :math:`b` lies in coarse cell :math:`(c_b, r_b)` at the
-    unshifted pose; at the shift :math:`(i, j)` steps it lies in
+    unshifted pose; at the shift of :math:`(i, j)` steps (:math:`|i|, |j| \le m`) it lies in
     :math:`(c_b + h i,\ r_b + h j)`, :math:`h` = :data:`SHIFT_CELLS` (the candidates
     move by whole coarse cells), so
 
     .. math:: S_{j,i} = \sum_b w_b\, \bar o(r_b + h j,\ c_b + h i)
-        = \sum_b w_b\, T_b[j, i],
+        = \sum_b w_b\, T_b[j + m, i + m],
 
     with :math:`T_b` the :math:`(2m+1)^2` block of the coarse map from
     :math:`(r_b - hm, c_b - hm)` with stride :math:`h`. The coarse map is split into its
