@@ -253,7 +253,7 @@ refinement in each stage, took 18.4 s against 11.3 s).
 
 Cost: one window of :math:`(2(r + R)/\rho)^2` cells (``r`` =
 :data:`SEARCH_REACH`; beams beyond it take no part in the coarse stage), about
-:math:`1.1 \cdot 10^6` cells at 5 cm, copied a tile at a time from the paged map, and
+:math:`1.1 \cdot 10^6` reads at 5 cm, and
 :math:`(2\Theta/\delta + 1)(2R/h + 1)^2` candidates of half the matched beams, scored as
 sums of shifted blocks of the coarse map (:func:`candidate_scores`): 1.3-2.3 ms for
 63,000 candidates on one core of the 2-core machine, where reading each candidate's
@@ -325,9 +325,7 @@ def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation)
     cols = c0[0] + jnp.arange(2 * half, dtype=jnp.int32)
     rows = c0[1] + jnp.arange(2 * half, dtype=jnp.int32)
     sat = jnp.asarray(saturation, dtype)
-    block = getattr(read, "block", None)  # a paged map copies whole tiles (jaxslam.grid.paged.reader)
-    cells = block(c0[0], c0[1], 2 * half, 2 * half) if block is not None else read(cols[None, :], rows[:, None])
-    occ = jnp.clip(cells.astype(dtype), 0, sat) / sat
+    occ = jnp.clip(read(cols[None, :], rows[:, None]).astype(dtype), 0, sat) / sat
     n = 2 * half // POOL
     coarse = occ.reshape(n, POOL, n, POOL).max(axis=(1, 3))
     coarse = jax.lax.reduce_window(coarse, jnp.asarray(0, dtype), jax.lax.max, (3, 3), (1, 1), "SAME")

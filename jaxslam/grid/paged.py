@@ -228,23 +228,6 @@ def reader(pool: Array, table: Array, corner: Array, layout: PagedLayout):
         # unsigned indices: no wrap-around of negative ones to compute (there are none)
         return cells[(slot * layout.tile_cells).astype(jnp.uint32) + local_cell(cols, rows, layout).astype(jnp.uint32)]
 
-    def block(col0: Array, row0: Array, height_cells: int, width_cells: int) -> Array:
-        """The cells of ``rows row0 .. row0 + height_cells - 1`` and ``cols col0 ..
-        col0 + width_cells - 1`` (sizes static), ``[row, col]``: ``read`` of that
-        rectangle, copied a tile at a time (the tiles that cover it, then the rectangle
-        cut out of them) instead of a cell at a time."""
-        size = layout.tile
-        mask = size - 1
-        across = -(-width_cells // size) + 1
-        down = -(-height_cells // size) + 1
-        ix = ((col0 >> layout.tile_bits) + jnp.arange(across, dtype=jnp.int32) - corner[0]).astype(jnp.uint32)
-        iy = ((row0 >> layout.tile_bits) + jnp.arange(down, dtype=jnp.int32) - corner[1]).astype(jnp.uint32)
-        slots = padded[jnp.minimum(iy, height)[:, None], jnp.minimum(ix, width)[None, :]]
-        tiles = cells.reshape(-1, size, size)[slots]  # (down, across, size, size)
-        covered = tiles.transpose(0, 2, 1, 3).reshape(down * size, across * size)
-        return jax.lax.dynamic_slice(covered, (row0 & mask, col0 & mask), (height_cells, width_cells))
-
-    read.block = block
     return read
 
 

@@ -15,7 +15,7 @@ from jaxslam.datasets.laser_sim import simulate
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.grid.experiment import run_grid_slam
 from jaxslam.grid.map import GridSpec
-from jaxslam.grid.paged import PINNED, PagedLayout, grow, init_maps, read_cells, reader, stitch
+from jaxslam.grid.paged import PINNED, PagedLayout, grow, init_maps, read_cells, stitch
 from jaxslam.grid.paged import resample_maps as _resample_maps
 from jaxslam.grid.update import update_grids, update_paged
 
@@ -147,17 +147,6 @@ def test_reader_reads_the_tile_of_every_cell_and_unknown_outside_the_table(corne
                                                jnp.asarray(cols, jnp.int32), jnp.asarray(rows, jnp.int32), layout)
     assert inside.any() and not inside.all()
     np.testing.assert_array_equal(np.asarray(got), expect)
-
-    # The reader's block (a rectangle copied a tile at a time) is the same rule: every
-    # rectangle of a few sizes and unaligned corners, inside, across and off the table.
-    block = jax.jit(lambda p, tb, c, x, y, h, w: reader(p, tb, c, layout).block(x, y, h, w), static_argnums=(5, 6))
-    x0, y0 = (corner[0] - 3) * t, (corner[1] - 3) * t
-    for h, w in [(1, 1), (5, 13), (17, 8), (24, 40)]:
-        for dy in range(0, expect.shape[0] - h + 1, 7):
-            for dx in range(0, expect.shape[1] - w + 1, 11):
-                got = block(jnp.asarray(pool), jnp.asarray(table), jnp.asarray(corner), jnp.int32(x0 + dx),
-                            jnp.int32(y0 + dy), h, w)
-                np.testing.assert_array_equal(np.asarray(got), expect[dy:dy + h, dx:dx + w])
 
 
 @settings(max_examples=6, deadline=None)
