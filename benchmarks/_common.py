@@ -18,7 +18,7 @@ def machine_info() -> dict[str, Any]:
     import jax
     import numpy as np
 
-    from jaxslam.compiler import cpus_allowed
+    from jaxslam.runtime.compiler import cpus_allowed
 
     cpu = platform.processor() or platform.machine()
     fields: dict[str, str] = {}
@@ -41,7 +41,7 @@ def machine_info() -> dict[str, Any]:
         "cpu_family_model": f"{fields.get('cpu family', '?')}/{fields.get('model', '?')}" if fields else None,
         "vector_extensions": sorted(flags & {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl"}),
         # the CPUs this process (and the workers it starts) may use: XLA compiles
-        # another program for another count (jaxslam.compiler.cpus_allowed)
+        # another program for another count (jaxslam.runtime.compiler.cpus_allowed)
         "cpus_allowed": cpus_allowed(),
         "platform": platform.platform(),
         "python": platform.python_version(),

@@ -372,7 +372,7 @@ def plot(payload: dict, name: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxslam.plotting import save
+    from jaxslam.app.plotting import save
 
     if "sim" in payload:
         sim = payload["sim"]
@@ -402,7 +402,7 @@ def plot(payload: dict, name: str) -> None:
         fig.tight_layout()
         save(fig, RESULTS / f"{name}_sim.png")
     if "vp" in payload:
-        from jaxslam.calibrate.cli import plot_curve
+        from jaxslam.app.calibrate import plot_curve
 
         cal = payload["vp"]["calibration"]
         curve = {"algorithm": "erb-upf", "dataset": "victoria-park", "names": list(NAMES),
@@ -414,7 +414,7 @@ def plot(payload: dict, name: str) -> None:
 
 
 def plot_grid(payload: dict, name: str) -> None:
-    from jaxslam.calibrate.cli import plot_curve
+    from jaxslam.app.calibrate import plot_curve
 
     grid = payload["grid"]
     curve = {**grid["calibration"], "algorithm": "srupf-gm", "dataset": grid["dataset"]}

@@ -36,7 +36,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, write_json  # noqa: E402
 
-from jaxslam.compiler import options  # noqa: E402
+from jaxslam.runtime.compiler import options  # noqa: E402
 from jaxslam.core import se2  # noqa: E402
 from jaxslam.grid.closure import SHIFT_CELLS, TURN_STEP, candidate_scores  # noqa: E402
 

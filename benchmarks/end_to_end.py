@@ -12,7 +12,7 @@ Cases (``--cases all`` for every one; default ``intel-srupf-30``):
 
 (``clinic-srupf-30``: the raw fr-clinic log, long-range scans and no relations to score.)
 
-Every jaxslam run is a fresh ``python -m jaxslam.cli run ... --no-progress`` process
+Every jaxslam run is a fresh ``python -m jaxslam.app.cli run ... --no-progress`` process
 (plots on, as a user runs it) under ``nice -n 10``. ``cold``: an empty compilation
 cache folder; ``warm``: the same folder again, so every program comes from the cache.
 From each run's ``summary.json``: ``load_s`` (reading the data), ``compile_s``
@@ -73,7 +73,7 @@ def run_jaxslam(case: str, cache: Path | None, out: Path, timeout: float, tree: 
     """One ``jaxslam run`` process from the checkout ``tree``; ``cache`` None: no cache
     flag (an old checkout that has no cache)."""
     dataset, algorithm, particles, _ = CASES[case]
-    cmd = ["nice", "-n", "10", sys.executable, "-m", "jaxslam.cli", "run", "--dataset", dataset,
+    cmd = ["nice", "-n", "10", sys.executable, "-m", "jaxslam.app.cli", "run", "--dataset", dataset,
            "--algorithm", algorithm, "--particles", str(particles), "--out", str(out), "--no-progress"]
     if cache is not None:
         cmd += ["--cache-dir", str(cache)]

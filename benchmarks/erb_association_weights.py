@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import write_json  # noqa: E402
 
 from jaxslam.datasets import victoria_park  # noqa: E402
-from jaxslam.driver import step_keys  # noqa: E402
+from jaxslam.runtime.driver import step_keys  # noqa: E402
 from jaxslam.feature import filter as F  # noqa: E402
 from jaxslam.feature.experiment import ALGORITHMS, params_for  # noqa: E402
 from jaxslam.feature.params import Config  # noqa: E402

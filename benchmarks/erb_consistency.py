@@ -49,7 +49,7 @@ import jax.numpy as jnp  # noqa: E402
 
 from jaxslam.datasets import landmark_sim  # noqa: E402
 from jaxslam.datasets.geometry import wrap_angle  # noqa: E402
-from jaxslam.driver import scan_steps  # noqa: E402
+from jaxslam.runtime.driver import scan_steps  # noqa: E402
 from jaxslam.feature import filter as feature_filter  # noqa: E402
 from jaxslam.feature.experiment import ALGORITHMS, params_for  # noqa: E402
 from jaxslam.feature.params import Config  # noqa: E402

@@ -12,7 +12,7 @@ resampling amplifies: compare the GPS error with the seed spread of
 
 ``--baseline ''`` times this tree alone (the cost against the particle count). Each
 child sizes XLA's thread pool as ``jaxslam run`` does
-(:func:`jaxslam.compiler.set_threads`; ``xla_threads`` in the rows).
+(:func:`jaxslam.runtime.compiler.set_threads`; ``xla_threads`` in the rows).
 
 Writes ``benchmarks/results/erb_speed.json``.
 """
@@ -39,8 +39,8 @@ import json, sys
 import jaxslam
 assert jaxslam.__file__.startswith(sys.argv[4]), (jaxslam.__file__, sys.argv[4])
 algorithm, particles, steps = sys.argv[1], int(sys.argv[2]), (None if sys.argv[3] == "all" else int(sys.argv[3]))
-try:  # XLA's thread pool as `jaxslam run` sizes it (revisions before jaxslam.compiler.set_threads: XLA's default)
-    from jaxslam.compiler import set_threads
+try:  # XLA's thread pool as `jaxslam run` sizes it (revisions before jaxslam.runtime.compiler.set_threads: XLA's default)
+    from jaxslam.runtime.compiler import set_threads
     threads = set_threads(None, algorithm, particles)["threads"]
 except ImportError:
     threads = "default"

@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import RESULTS, write_json  # noqa: E402
 
 from jaxslam.datasets import landmark_sim, victoria_park  # noqa: E402
-from jaxslam.driver import best_particle  # noqa: E402
+from jaxslam.runtime.driver import best_particle  # noqa: E402
 from jaxslam.feature.ensemble import run_landmark_ensemble  # noqa: E402
 from jaxslam.metrics.gps import align_rigid_2d, gps_error, gps_jump_mask  # noqa: E402
 from jaxslam.metrics.particle_diagnostics import ancestral_path, coalescence_depth  # noqa: E402

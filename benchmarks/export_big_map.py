@@ -87,7 +87,7 @@ def main() -> None:
     parser.add_argument("--baseline", default="main", help="git revision to compare with ('' for none)")
     args = parser.parse_args()
 
-    from jaxslam import plotting
+    from jaxslam.app import plotting
     from jaxslam.grid import export
 
     versions = {"current": (export, plotting)}

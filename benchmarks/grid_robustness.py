@@ -92,12 +92,12 @@ BENCH_MIN_FOUND = 0.95
 # Worker: one jaxslam run in this process.
 # ---------------------------------------------------------------------------
 def worker(spec: dict) -> dict:
-    from jaxslam.cache import enable_compilation_cache
-    from jaxslam.compiler import set_threads
+    from jaxslam.runtime.cache import enable_compilation_cache
+    from jaxslam.runtime.compiler import set_threads
 
     set_threads(None, spec["algorithm"], int(spec["particles"]))  # XLA's thread pool as `jaxslam run` sizes it
     # jaxslam's cache setup, not JAX's alone: its keys include the thread pool and the CPU
-    # set (jaxslam.compiler.compile_environment), so pinned and unpinned workers sharing
+    # set (jaxslam.runtime.compiler.compile_environment), so pinned and unpinned workers sharing
     # the folder each run their own programs.
     enable_compilation_cache(os.environ.get("JAX_COMPILATION_CACHE_DIR", "/tmp/jaxslam_robust_jax_cache"))
     from jaxslam.grid.experiment import run_grid_slam

@@ -8,11 +8,11 @@ from 3 %, and each costs the whole log. This script spends the runs on the stret
 
 1. it runs the log once with ``--base-seed`` and keeps the filter state (particles,
    maps, weights, the parameters) when ``--from-scan`` scans are done, as a checkpoint
-   (:class:`jaxslam.checkpoint.Checkpoint`; the state is kept at the end of the chunk
+   (:class:`jaxslam.runtime.checkpoint.Checkpoint`; the state is kept at the end of the chunk
    of 256 scans that reaches ``--from-scan``, and that scan is reported);
 2. it resumes from that state with every seed of ``--seeds``: the steps after the
    checkpoint draw their proposal noise and resampling from the new seed's step keys
-   (:func:`jaxslam.driver.step_keys`), the steps before it are the base run's;
+   (:func:`jaxslam.runtime.driver.step_keys`), the steps before it are the base run's;
 3. it scores the whole trajectory on the log's benchmark relations. A run *fails* when
    a relation is off by more than 1 m (issue 10's bar for Intel and FR079). All runs
    share the first part, so the relations there add the same errors to every run and
@@ -89,7 +89,7 @@ def wilson(failures: int, runs: int, z: float = 1.96) -> tuple[float, float]:
 def checkpoints():
     """Checkpoint subclasses: one that keeps only the first state it is asked to save,
     and one that resumes with the run's own parameters and never saves."""
-    from jaxslam.checkpoint import Checkpoint
+    from jaxslam.runtime.checkpoint import Checkpoint
 
     class KeepFirst(Checkpoint):
         saved_at: int | None = None

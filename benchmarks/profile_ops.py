@@ -81,7 +81,7 @@ def exclusive_times(events: list[dict]) -> tuple[dict[str, float], dict[str, flo
 
 def run_case(case: str, steps: int | None):
     kind, dataset, algorithm, particles = CASES[case]
-    from jaxslam.compiler import set_threads
+    from jaxslam.runtime.compiler import set_threads
 
     threads = set_threads(None, algorithm, particles)["threads"]
     if kind == "grid":

@@ -1,4 +1,4 @@
-"""The persistent compilation cache (jaxslam.cache): where it lives, that a warm cache
+"""The persistent compilation cache (jaxslam.runtime.cache): where it lives, that a warm cache
 compiles nothing new in a fresh process, and that cached programs compute bit for bit
 what freshly compiled ones do."""
 
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxslam.cache import ENV_VAR, default_cache_dir, resolve_cache_dir
+from jaxslam.runtime.cache import ENV_VAR, default_cache_dir, resolve_cache_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # composition, Gaussian log-densities, systematic resampling) plus a few eager ops.
 PROGRAM = r"""
 import json, sys
-from jaxslam.cache import CompileCounter, enable_compilation_cache
+from jaxslam.runtime.cache import CompileCounter, enable_compilation_cache
 path = enable_compilation_cache(sys.argv[1] if len(sys.argv) > 1 else None)
 import jax, jax.numpy as jnp
 from jaxslam.core import resampling, se2
@@ -109,7 +109,7 @@ def test_each_thread_pool_and_cpu_set_gets_its_own_entries(tmp_path):
     differ), and JAX's own key leaves both out: an entry stored with one thread must
     not serve a run with all, nor one stored unpinned a run pinned to one core. Each
     gets its own entries, and a repeat of the same setting hits them."""
-    from jaxslam.compiler import compile_environment
+    from jaxslam.runtime.compiler import compile_environment
 
     cache = str(tmp_path / "cache")
     one_cpu = {min(os.sched_getaffinity(0))}
@@ -130,7 +130,7 @@ def test_each_thread_pool_and_cpu_set_gets_its_own_entries(tmp_path):
 
 
 def test_cli_no_cache_and_cache_dir_flags(tmp_path):
-    from jaxslam import cli
+    from jaxslam.app import cli
 
     args = cli.build_parser().parse_args(["run", "--no-cache", "--out", str(tmp_path)])
     assert args.no_cache and args.cache_dir is None
@@ -147,7 +147,7 @@ def test_cli_runs_identical_cold_warm_and_off(tmp_path):
                         ("off", ["--no-cache"]), ("all threads", ["--no-cache", "--threads", "all"])):
         out = tmp_path / name
         proc = subprocess.run(
-            [sys.executable, "-m", "jaxslam.cli", "run", "--max-steps", "20", "--particles", "8", "--no-plots",
+            [sys.executable, "-m", "jaxslam.app.cli", "run", "--max-steps", "20", "--particles", "8", "--no-plots",
              "--no-progress", "--out", str(out), *flags],
             capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=600)
         assert proc.returncode == 0, proc.stderr[-3000:]
@@ -169,7 +169,8 @@ def test_cli_runs_identical_cold_warm_and_off(tmp_path):
 def test_unusable_cache_folder(tmp_path, monkeypatch, capsys):
     """An explicit folder that cannot be made is an error naming it; an unusable
     default only costs the cache (a warning), never the run."""
-    from jaxslam import cache, cli
+    from jaxslam.app import cli
+    from jaxslam.runtime import cache
 
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
@@ -179,7 +180,7 @@ def test_unusable_cache_folder(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
     args = cli.build_parser().parse_args(["run", "--out", str(tmp_path / "o"), "--list-params"])
     args.list_params = False
-    monkeypatch.setattr("jaxslam.cli.run_from_args", lambda _args: None)
+    monkeypatch.setattr("jaxslam.app.cli.run_from_args", lambda _args: None)
     assert cli.cmd_run(args) == 0
     assert "running without the compilation cache" in capsys.readouterr().err
     args.cache_dir = blocker / "sub"
@@ -187,16 +188,16 @@ def test_unusable_cache_folder(tmp_path, monkeypatch, capsys):
         cli.cmd_run(args)
 
 
-# A chunk runner (jaxslam.progress) with a tag, compiled through jaxslam.executables:
+# A chunk runner (jaxslam.runtime.progress) with a tag, compiled through jaxslam.runtime.executables:
 # the first process stores the lowered program, a later one loads it without tracing.
 EXPORT_PROGRAM = r"""
 import json, sys
-from jaxslam.cache import enable_compilation_cache
+from jaxslam.runtime.cache import enable_compilation_cache
 enable_compilation_cache(sys.argv[1])
 import jax, jax.numpy as jnp
 from jaxslam.core import se2
-from jaxslam.executables import compile_runner, entry_path
-from jaxslam.progress import make_chunk_runner
+from jaxslam.runtime.executables import compile_runner, entry_path
+from jaxslam.runtime.progress import make_chunk_runner
 
 def step(carry, x):
     poses, total = carry
@@ -211,7 +212,7 @@ def carry():
 xs = (jax.random.split(jax.random.key(5), 8), jnp.tile(jnp.array([0.1, 0.0, 0.02], jnp.float32), (8, 1)))
 valid = jnp.arange(8) < 6
 # argv[2] "options": the runner carries jaxslam's XLA options (as the grid runners do)
-from jaxslam.compiler import OPTIONS
+from jaxslam.runtime.compiler import OPTIONS
 options = OPTIONS if sys.argv[2:] == ["options"] else None
 runner = make_chunk_runner(step, tag=("test-export", "v1", True), compiler_options=options)
 compiled, loaded = compile_runner(runner, carry(), xs, valid)
@@ -227,7 +228,7 @@ print(json.dumps({"loaded": loaded, "entry": str(entry_path(__import__("pathlib"
 def test_exported_chunk_runner_is_stored_loaded_and_bit_identical(tmp_path, options):
     """Cold: stored, not loaded; warm: loaded from disk; an unreadable entry is a miss
     and is replaced; every time the result equals the directly jitted runner's. Also
-    for a runner with XLA compiler options (jaxslam.compiler), which JAX refuses on a
+    for a runner with XLA compiler options (jaxslam.runtime.compiler), which JAX refuses on a
     nested jit: the export traces the runner's function instead."""
     cache = tmp_path / "cache"
     runs = []
@@ -248,7 +249,7 @@ def test_export_entry_depends_on_source_tag_and_shapes(monkeypatch, tmp_path):
     runner's tag and the arguments' shapes and dtypes."""
     import jax.numpy as jnp
 
-    from jaxslam import executables
+    from jaxslam.runtime import executables
 
     args = (jnp.zeros((4, 3), jnp.float32), jnp.zeros(2, jnp.int32))
     base = executables.entry_path(tmp_path, ("t", 1), args)
@@ -263,7 +264,7 @@ def test_export_entry_depends_on_source_tag_and_shapes(monkeypatch, tmp_path):
 
 def test_runner_tag_only_for_library_functions():
     """Steps outside jaxslam (their source is not hashed) get no tag and are not stored."""
-    from jaxslam.executables import runner_tag
+    from jaxslam.runtime.executables import runner_tag
     from jaxslam.grid import driver, srupf
 
     config = ("a config",)

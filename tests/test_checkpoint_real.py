@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxslam.checkpoint import Checkpoint, CheckpointError
+from jaxslam.runtime.checkpoint import Checkpoint, CheckpointError
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.feature.experiment import LandmarkSlamResult, run_landmark_slam
 

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from jaxslam import cli
+from jaxslam.app import cli
 from jaxslam.datasets import paths
 
 
@@ -141,7 +141,7 @@ def test_evaluate_relations_of_raw_odometry(tmp_path, capsys):
 
 
 def test_console_script_entry_point():
-    result = subprocess.run([sys.executable, "-m", "jaxslam.cli", "datasets"], capture_output=True, text=True)
+    result = subprocess.run([sys.executable, "-m", "jaxslam.app.cli", "datasets"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert np.any(["sim-laser" in line for line in result.stdout.splitlines()])
 
@@ -154,7 +154,7 @@ def test_console_script_exits_quickly_after_running_exit_handlers(tmp_path):
         "import atexit, sys\n"
         f"atexit.register(lambda: open({str(marker)!r}, 'w').write('yes'))\n"
         "sys.argv = ['jaxslam', 'datasets']\n"
-        "from jaxslam.cli import console_main\n"
+        "from jaxslam.app.cli import console_main\n"
         "console_main()\n"
         "print('not reached')\n"
     )
@@ -162,7 +162,7 @@ def test_console_script_exits_quickly_after_running_exit_handlers(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "sim-laser" in result.stdout and "not reached" not in result.stdout
     assert marker.read_text() == "yes"
-    failed = subprocess.run([sys.executable, "-m", "jaxslam.cli", "evaluate", "--relations", "intel",
+    failed = subprocess.run([sys.executable, "-m", "jaxslam.app.cli", "evaluate", "--relations", "intel",
                              "--trajectory", str(tmp_path / "none.tum")], capture_output=True, text=True)
     assert failed.returncode == 2 and "none.tum" in failed.stderr
 
@@ -171,12 +171,12 @@ def test_installed_command_is_the_quick_exit_entry_point():
     from importlib.metadata import entry_points
 
     (script,) = [e for e in entry_points(group="console_scripts") if e.name == "jaxslam"]
-    assert script.value == "jaxslam.cli:console_main"
+    assert script.value == "jaxslam.app.cli:console_main"
 
 
 @pytest.mark.long
 def test_interrupted_run_resumes_to_identical_outputs(tmp_path, monkeypatch, capsys):
-    from jaxslam import checkpoint as ckpt
+    from jaxslam.runtime import checkpoint as ckpt
 
     common = ("--particles", "6", "--max-steps", "60", "--no-progress", "--no-plots", "--seed", "3")
     straight = tmp_path / "straight"
@@ -207,7 +207,7 @@ def test_interrupted_run_resumes_to_identical_outputs(tmp_path, monkeypatch, cap
 
 @pytest.mark.long
 def test_grid_run_interrupted_and_resumed_equals_straight_run(tmp_path, monkeypatch):
-    from jaxslam import checkpoint as ckpt
+    from jaxslam.runtime import checkpoint as ckpt
 
     common = ("--algorithm", "srupf-gm", "--particles", "4", "--max-steps", "24", "--no-progress", "--no-plots",
               "--linear-update", "0.4")
@@ -265,7 +265,7 @@ def test_keyframe_thresholds_are_for_laser_data_only(capsys, tmp_path):
 def test_float64_run_switches_x64_on_for_that_run_only(tmp_path):
     import jax
 
-    from jaxslam import runs
+    from jaxslam.app import runs
 
     before = jax.config.jax_enable_x64
     summary = runs.run(out=tmp_path, algorithm="rb-upf", particles=2, max_steps=5, float64=True,
@@ -279,7 +279,7 @@ def test_float64_run_switches_x64_on_for_that_run_only(tmp_path):
 def test_listed_params_carry_each_filters_keyframe_rule(algorithm, linear):
     """`--list-params` and default_params give a filter the keyframe rule it runs with."""
     from jaxslam.grid.types import default_keyframes, default_params
-    from jaxslam.runs import param_fields
+    from jaxslam.app.runs import param_fields
 
     assert default_keyframes(algorithm)[0] == linear
     fields = param_fields(algorithm)

@@ -1,4 +1,4 @@
-"""jaxslam's XLA compiler options (jaxslam.compiler): what options() returns, that jit
+"""jaxslam's XLA compiler options (jaxslam.runtime.compiler): what options() returns, that jit
 applies them and keeps them on the jitted function, and the size of XLA's CPU thread
 pool (set_threads)."""
 
@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxslam import compiler
+from jaxslam.runtime import compiler
 
 
 def test_options_default_environment_and_xla_flags(monkeypatch):
@@ -134,7 +134,7 @@ def test_set_threads_after_the_backend_started_changes_nothing(monkeypatch):
 def _xla_threads_in_subprocess(threads) -> int:
     code = (
         "import os, jax.numpy as jnp\n"
-        "from jaxslam.compiler import set_threads\n"
+        "from jaxslam.runtime.compiler import set_threads\n"
         f"set_threads({threads!r}, 'erb-upf', 100)\n"
         "jnp.zeros(3).block_until_ready()\n"
         "names = [open(f'/proc/self/task/{t}/comm').read().strip() for t in os.listdir('/proc/self/task')]\n"
@@ -173,8 +173,8 @@ def test_grid_runs_do_not_depend_on_xla_threads(tmp_path):
     """The grid filter itself, as ``jaxslam run`` runs it, in fresh processes with one XLA
     thread and with every core: the same trajectory and map bit for bit. XLA splits a
     program's generated code by its thread pool, and with the loop emitters the split
-    changes the rounding (:mod:`jaxslam.compiler`); the fixed split count of
-    :data:`jaxslam.compiler.OPTIONS` keeps that out. This segment (Intel, 30 particles,
+    changes the rounding (:mod:`jaxslam.runtime.compiler`); the fixed split count of
+    :data:`jaxslam.runtime.compiler.OPTIONS` keeps that out. This segment (Intel, 30 particles,
     150 keyframes) is one where it shows: with
     ``XLA_FLAGS=--xla_cpu_parallel_codegen_split_count=32`` (XLA's split on two threads)
     this test fails on the project's 2-core machine (checked when it was written, jax
@@ -192,7 +192,7 @@ def test_grid_runs_do_not_depend_on_xla_threads(tmp_path):
     for threads in ("1", "all"):
         out = tmp_path / threads
         proc = subprocess.run(
-            [sys.executable, "-m", "jaxslam.cli", "run", "--dataset", "intel", "--algorithm", "srupf-gm",
+            [sys.executable, "-m", "jaxslam.app.cli", "run", "--dataset", "intel", "--algorithm", "srupf-gm",
              "--particles", "30", "--max-steps", "150", "--threads", threads, "--no-cache", "--no-plots",
              "--no-progress", "--out", str(out)],
             capture_output=True, text=True, env=env, timeout=600)
@@ -207,7 +207,7 @@ def test_cpus_allowed_follows_the_affinity_taskset_sets():
     code = (
         "import os\n"
         "os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})\n"
-        "from jaxslam.compiler import cpus_allowed\n"
+        "from jaxslam.runtime.compiler import cpus_allowed\n"
         "print(cpus_allowed())\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

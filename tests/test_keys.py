@@ -1,4 +1,4 @@
-"""jaxslam.keys: keys made on the host are JAX's, bit for bit."""
+"""jaxslam.runtime.keys: keys made on the host are JAX's, bit for bit."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxslam.keys import seed_key, split_keys, threefry2x32
+from jaxslam.runtime.keys import seed_key, split_keys, threefry2x32
 
 
 @pytest.mark.parametrize("seed", [0, 1, 7, 42, 123456789, 2**31 - 1, -1, -5, -(2**31), np.int32(3), np.int64(9)])

@@ -1,9 +1,9 @@
-"""The output folder's files (jaxslam.outputs)."""
+"""The output folder's files (jaxslam.app.outputs)."""
 
 import numpy as np
 import pytest
 
-from jaxslam.outputs import write_npz
+from jaxslam.app.outputs import write_npz
 
 
 def test_write_npz_reads_back_with_np_load(tmp_path):

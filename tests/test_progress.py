@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.progress import make_chunk_runner, run_scan_chunked
+from jaxslam.runtime.progress import make_chunk_runner, run_scan_chunked
 
 
 def step(carry, x):
@@ -62,7 +62,7 @@ def test_runner_compiles_once_across_calls():
 def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path, monkeypatch):
     import pytest
 
-    from jaxslam.checkpoint import Checkpoint, CheckpointError
+    from jaxslam.runtime.checkpoint import Checkpoint, CheckpointError
 
     xs = {"value": jnp.sin(jnp.arange(47, dtype=jnp.float32))}
     init = (jnp.array(0.0, jnp.float32), jnp.array(0))
@@ -96,7 +96,7 @@ def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path, monkeypatch)
                          checkpoint=Checkpoint(path, fingerprint={"algorithm": "toy", "seed": 1}, resume=True))
     # a checkpoint written by another version of jaxslam's source (or JAX's) is refused,
     # naming the file; the digest covers the JAX version
-    from jaxslam import checkpoint as checkpoint_module
+    from jaxslam.runtime import checkpoint as checkpoint_module
 
     with monkeypatch.context() as patch:
         patch.setattr(jax, "__version__", jax.__version__ + ".other")
@@ -139,7 +139,7 @@ def test_checkpoint_interrupt_and_resume_is_bit_identical(tmp_path, monkeypatch)
 def test_checkpoint_load_leading_restores_only_the_leading_state(tmp_path):
     import pytest
 
-    from jaxslam.checkpoint import Checkpoint, CheckpointError
+    from jaxslam.runtime.checkpoint import Checkpoint, CheckpointError
 
     state = {"a": np.arange(3, dtype=np.float32), "b": np.array(7, np.int32)}
     carry = (state, np.array([0.5, 2.0], np.float32))  # (state, params)

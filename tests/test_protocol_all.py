@@ -1,10 +1,10 @@
 """The four filters (landmark RB-UPF and ERB-UPF, grid GMapping and SRUPF-GM) share one
-protocol (:mod:`jaxslam.driver`): ``init(key, params, config, ...)``,
+protocol (:mod:`jaxslam.runtime.driver`): ``init(key, params, config, ...)``,
 ``step(key, state, control, observation, params, config) -> (State, Info)``,
 ``run(key, state, controls, observations, params, config)``; ``Info`` always has
 ``ess``, ``resampled`` and ``ancestors``; the best particle is the argmax of
 ``State.cumulative_log_likelihood``; and the path the CLI uses (``run_landmark_slam`` /
-``run_grid_slam`` -> the cached :func:`jaxslam.driver.chunk_runner`) compiles once per
+``run_grid_slam`` -> the cached :func:`jaxslam.runtime.driver.chunk_runner`) compiles once per
 static config, whatever the Params and the seed."""
 
 import inspect
@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxslam import driver
+from jaxslam.runtime import driver
 from jaxslam.datasets.landmark_sim import simulate as simulate_landmarks
 from jaxslam.datasets.laser_sim import simulate as simulate_laser
 from jaxslam.feature import filter as feature_filter
@@ -139,7 +139,7 @@ def test_grid_cli_path_compiles_once_per_config(sim_log, algorithm):
                                                                "resample_threshold": 0.3, "usable_range": 12.0}, **kw)
     assert second.config == first.config
     assert grid_driver.chunk_runner(GRID_STEPS[algorithm], second.config) is runner
-    # the shared driver's runner, with the grid programs' XLA options (jaxslam.compiler)
+    # the shared driver's runner, with the grid programs' XLA options (jaxslam.runtime.compiler)
     assert runner is driver.chunk_runner(GRID_STEPS[algorithm], first.config, grid_driver.summarise,
                                          grid_driver.compiler_options())
     assert runner._cache_size() == compiled

@@ -7,7 +7,7 @@ estimate (stop-gradient resampling, Scibior & Wood 2021).
   several filters per step).
 
 The names below are imported on first use: the command line imports
-:mod:`jaxslam.calibrate.cli` for its parser on every ``jaxslam`` call, and loading JAX
+:mod:`jaxslam.app.calibrate` for its parser on every ``jaxslam`` call, and loading JAX
 and optax there cost ``jaxslam run`` about a second before it had done anything.
 """
 

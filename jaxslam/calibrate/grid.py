@@ -76,10 +76,10 @@ import numpy as np
 from jax import Array
 from jax.scipy.special import logsumexp
 
-from jaxslam.compiler import jit
+from jaxslam.runtime.compiler import jit
 from jaxslam.core import se2
 from jaxslam.core.resampling import normalize_log_weights
-from jaxslam.driver import step_keys
+from jaxslam.runtime.driver import step_keys
 from jaxslam.grid import srupf
 from jaxslam.grid.filter import match_geometry, particle_reader, score_model
 from jaxslam.grid.score import scan_log_likelihood

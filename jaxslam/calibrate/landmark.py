@@ -36,7 +36,7 @@ from jax import Array
 from jax.scipy.special import logsumexp
 
 from jaxslam.core.resampling import normalize_log_weights, selective_resample_stop_gradient
-from jaxslam.driver import step_keys
+from jaxslam.runtime.driver import step_keys
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.params import Config, Params
 from jaxslam.feature.particle import particle_step

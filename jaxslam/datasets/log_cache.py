@@ -3,7 +3,7 @@ parse it again.
 
 Reading Intel (13631 scans) takes 0.7-1.0 s: decompressing, NumPy's text parser, the
 "no return" sentinel search, the odometry checks. A warm ``jaxslam run`` (compiled
-programs from :mod:`jaxslam.cache`) spends about a quarter of everything besides its
+programs from :mod:`jaxslam.runtime.cache`) spends about a quarter of everything besides its
 filter loop there. :func:`load_carmen_cached` keeps the finished :class:`CarmenLog`
 in the subfolder ``logs`` of the compilation-cache folder as an uncompressed ``.npz``
 (every array as stored, the other fields as JSON) and loads that in about 20 ms.
@@ -15,7 +15,7 @@ name is the SHA-256 of
   is read again; a copy elsewhere finds the entry);
 * the reader's options (``max_range``, ``on_error``, ...);
 * the bytes of every ``.py`` file of the installed ``jaxslam`` package
-  (:func:`jaxslam.executables.source_digest`: any edit to the reader invalidates
+  (:func:`jaxslam.runtime.executables.source_digest`: any edit to the reader invalidates
   every entry) and the NumPy version.
 
 Only successful reads are stored, so a bad log raises the reader's own error every
@@ -50,7 +50,7 @@ _TUPLE_FIELDS = ("problems",)
 
 def entry_path(folder: os.PathLike | str, path: os.PathLike | str, options: dict[str, Any]) -> Path:
     """The cache file of ``path`` read with ``options`` (see the module docstring)."""
-    from jaxslam.executables import source_digest
+    from jaxslam.runtime.executables import source_digest
 
     with open(path, "rb") as fh:
         content = hashlib.file_digest(fh, "sha256").hexdigest()

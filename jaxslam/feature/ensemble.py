@@ -1,9 +1,9 @@
 """The same landmark filter for many seeds as one compiled program.
 
 :func:`run_landmark_ensemble` runs RB-UPF or ERB-UPF once per seed of ``seeds``:
-:func:`jaxslam.feature.filter.init` and :func:`jaxslam.driver.scan_steps` of
+:func:`jaxslam.feature.filter.init` and :func:`jaxslam.runtime.driver.scan_steps` of
 :func:`jaxslam.feature.filter.step` are ``vmap``-ed over the seeds' keys. Seed ``s`` uses exactly the keys of
-the single-seed run (``PRNGKey(s)`` and :func:`jaxslam.driver.step_keys`), so member
+the single-seed run (``PRNGKey(s)`` and :func:`jaxslam.runtime.driver.step_keys`), so member
 ``i`` is :func:`jaxslam.feature.experiment.run_landmark_slam` of ``seeds[i]``. The
 compiled program is cached per static configuration
 (:class:`~jaxslam.feature.params.Config`, dtype, shapes): a sweep over ``Params`` or
@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.driver import best_particle, scan_steps
+from jaxslam.runtime.driver import best_particle, scan_steps
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.experiment import ALGORITHMS, params_for
 from jaxslam.feature.params import Config, Params
@@ -36,7 +36,7 @@ class LandmarkEnsembleResult:
         pose_covs: ``(S, T, 3, 3)`` weighted covariance of the particle poses.
         info: every :class:`~jaxslam.feature.filter.Info` field, ``(S, T, ...)``.
         landmarks: ``(S,)`` landmarks of each seed's best particle at the end
-            (:func:`jaxslam.driver.best_particle`).
+            (:func:`jaxslam.runtime.driver.best_particle`).
         state: the final :class:`~jaxslam.feature.filter.State` of every seed.
         wall_s: run time after compilation [s] (all seeds together).
         compile_s: compilation time [s] (0 when the program was cached).

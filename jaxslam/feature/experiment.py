@@ -4,9 +4,9 @@
 ``observations (T, Z, 2)`` and ``obs_mask (T, Z)`` (Victoria Park or the simulator),
 builds :class:`~jaxslam.feature.params.Params` for it (the paper's noise, the car
 geometry from the sequence's ``meta``), runs the filter in jitted chunks with a
-progress bar (:func:`jaxslam.progress.run_scan_chunked` with the chunk runner cached per
-static config, :func:`jaxslam.driver.chunk_runner`; compilation timed apart) and
-returns the trajectory, the map of the best particle (:func:`jaxslam.driver.best_particle`)
+progress bar (:func:`jaxslam.runtime.progress.run_scan_chunked` with the chunk runner cached per
+static config, :func:`jaxslam.runtime.driver.chunk_runner`; compilation timed apart) and
+returns the trajectory, the map of the best particle (:func:`jaxslam.runtime.driver.best_particle`)
 and the per-step ``Info`` as NumPy arrays.
 """
 
@@ -19,12 +19,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.driver import best_particle, chunk_runner
+from jaxslam.runtime.driver import best_particle, chunk_runner
 from jaxslam.feature import filter as feature_filter
 from jaxslam.feature.params import Config, Params
-from jaxslam.keys import seed_key, split_keys
+from jaxslam.runtime.keys import seed_key, split_keys
 from jaxslam.models.vehicle import CarGeometry
-from jaxslam.progress import run_scan_chunked
+from jaxslam.runtime.progress import run_scan_chunked
 
 ALGORITHMS = {"erb-upf": "erb", "rb-upf": "rb", "erb": "erb", "rb": "rb"}
 
@@ -40,7 +40,7 @@ class LandmarkSlamResult:
             laser's position and the car's heading).
         pose_covs: (T, 3, 3) weighted covariance of the particle poses.
         landmark_means: (M, 2) active landmarks of the best particle
-            (:func:`jaxslam.driver.best_particle`).
+            (:func:`jaxslam.runtime.driver.best_particle`).
         landmark_covs: (M, 2, 2) their covariances.
         info: every :class:`~jaxslam.feature.filter.Info` field, stacked over T.
         wall_s: run time after compilation [s].
@@ -126,8 +126,8 @@ def run_landmark_slam(
         progress: show a progress bar and the compilation notice.
         chunk: scans per compiled chunk.
         dtype: float dtype of the filter (float64 needs ``jax_enable_x64``).
-        checkpoint: passed to :func:`jaxslam.progress.run_scan_chunked` (resume/save).
-        callback: passed to :func:`jaxslam.progress.run_scan_chunked`: called on the host
+        checkpoint: passed to :func:`jaxslam.runtime.progress.run_scan_chunked` (resume/save).
+        callback: passed to :func:`jaxslam.runtime.progress.run_scan_chunked`: called on the host
             as ``callback(carry, steps_done)`` after every chunk; the carry is
             ``(State, Params)``.
     """
@@ -136,7 +136,7 @@ def run_landmark_slam(
     if not isinstance(params, Params):
         params = params_for(sequence, **(params or {}))
     cfg = Config(num_particles=particles, proposal=ALGORITHMS[algorithm], **(config or {}))
-    key = seed_key(seed)  # jax.random.PRNGKey(seed), made on the host (jaxslam.keys)
+    key = seed_key(seed)  # jax.random.PRNGKey(seed), made on the host (jaxslam.runtime.keys)
     steps = int(np.shape(sequence.controls)[0])
     state = feature_filter.init(key, params, cfg, jnp.zeros(3, dtype))
     params_arr = feature_filter.cast_params(params, dtype)

@@ -27,8 +27,8 @@ makes after its branches over the observation width, in place):
    (:mod:`jaxslam.feature.landmarks`).
 6. **Selective resampling** when ESS < ``resample_threshold`` N.
 
-``init``/``step``/``run`` follow the protocol of every filter (:mod:`jaxslam.driver`):
-step keys ``jaxslam.driver.step_keys(key, T)``, ``Info`` with ``ess``, ``resampled`` and
+``init``/``step``/``run`` follow the protocol of every filter (:mod:`jaxslam.runtime.driver`):
+step keys ``jaxslam.runtime.driver.step_keys(key, T)``, ``Info`` with ``ess``, ``resampled`` and
 ``ancestors``. **Best particle**: the particle with the largest accumulated
 log-likelihood (``State.cumulative_log_likelihood``, the sum of its eq. 11 increments
 over its history, carried through resampling), as in the grid filters; not the
@@ -74,7 +74,7 @@ from jax.scipy.special import logsumexp
 
 from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
 from jaxslam.core.se2 import pose_residual, wrap_angle
-from jaxslam.driver import best_particle, scan_runner
+from jaxslam.runtime.driver import best_particle, scan_runner
 from jaxslam.feature.landmarks import LandmarkTable, empty_table
 from jaxslam.feature.params import Config, Params
 from jaxslam.feature.particle import Observation, ParticleOut, apply_writes, pad_writes, particle_writes
@@ -90,7 +90,7 @@ class State(NamedTuple):
         log_weights: ``(N,)`` normalised log-weights.
         cumulative_log_likelihood: ``(N,)`` the sum of the particle's log weight
             increments (eq. 11) over its whole history, carried through resampling;
-            its argmax is the best particle (:func:`jaxslam.driver.best_particle`).
+            its argmax is the best particle (:func:`jaxslam.runtime.driver.best_particle`).
         landmarks: :class:`LandmarkTable` with leading axis ``N``.
     """
 
@@ -144,7 +144,7 @@ def init(key: Array, params: Params, config: Config, initial_pose: Array | None 
     The dtype of the filter is that of ``initial_pose`` (default float: float32, or
     float64 under ``jax_enable_x64``). Jitted (one compilation per config). ``key`` is
     unused (a deterministic start, as the grid filters' ``init``) but kept first for
-    the common signature (:mod:`jaxslam.driver`).
+    the common signature (:mod:`jaxslam.runtime.driver`).
     """
     del key  # the initial state is deterministic; the key keeps the protocol's signature
     pose = jnp.zeros(3) if initial_pose is None else jnp.asarray(initial_pose)
@@ -371,10 +371,10 @@ def step(
 
 
 run = scan_runner(step)
-run.__doc__ = """Scan :func:`step` over a sequence (:func:`jaxslam.driver.scan_runner`).
+run.__doc__ = """Scan :func:`step` over a sequence (:func:`jaxslam.runtime.driver.scan_runner`).
 
 Args:
-    key: PRNG key; step ``t`` uses ``jaxslam.driver.step_keys(key, T)[t]``.
+    key: PRNG key; step ``t`` uses ``jaxslam.runtime.driver.step_keys(key, T)[t]``.
     state: from :func:`init`.
     controls: ``(T, K, 3)``.
     observations: :class:`Observation` stacked over ``T``: ``values (T, Z, 2)``,

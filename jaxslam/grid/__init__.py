@@ -13,7 +13,7 @@ Modules:
 * :mod:`~jaxslam.grid.types` — config, params, state, info, inputs.
 * :mod:`~jaxslam.grid.filter` — ``init`` and the shared tail of both filters' steps.
 * :mod:`~jaxslam.grid.driver` — the grid run loop: chunks through the cached runners of
-  :mod:`jaxslam.driver` (step keys, jit policy), map growth.
+  :mod:`jaxslam.runtime.driver` (step keys, jit policy), map growth.
 * :mod:`~jaxslam.grid.gmapping`, :mod:`~jaxslam.grid.srupf` — the filters
   (``init``/``step``/``run``).
 * :mod:`~jaxslam.grid.export` — PGM + YAML (ROS map_server) and PNG.

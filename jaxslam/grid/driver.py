@@ -1,12 +1,12 @@
 """One driver for the grid filters: keys, jit policy, chunked runs and map growth.
 
-* The filters' ``run`` is :func:`jaxslam.driver.scan_runner` of their ``step``, the
+* The filters' ``run`` is :func:`jaxslam.runtime.driver.scan_runner` of their ``step``, the
   driver shared with the landmark filter (one key per keyframe from
-  :func:`jaxslam.driver.step_keys`, the one way step keys are derived; the host loop
-  makes the same bits with :func:`jaxslam.keys.split_keys`).
+  :func:`jaxslam.runtime.driver.step_keys`, the one way step keys are derived; the host loop
+  makes the same bits with :func:`jaxslam.runtime.keys.split_keys`).
 * :func:`run_filter` — the host loop used by :func:`jaxslam.grid.experiment.run_grid_slam`,
   the CLI, the notebooks and the benchmarks: ``init`` (jitted), then the keyframes
-  in jitted chunks with a progress bar (:func:`jaxslam.progress.run_scan_chunked`).
+  in jitted chunks with a progress bar (:func:`jaxslam.runtime.progress.run_scan_chunked`).
   The chunk runner is cached per (filter, static config), so a sweep over
   ``Params`` or a second run with the same shapes never recompiles. When a step
   is refused because the paged maps are full (:mod:`jaxslam.grid.paged`), the
@@ -26,14 +26,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.compiler import jit_with, options
-from jaxslam.driver import chunk_runner as shared_chunk_runner
-from jaxslam.executables import compile_runner, runner_tag
+from jaxslam.runtime.compiler import jit_with, options
+from jaxslam.runtime.driver import chunk_runner as shared_chunk_runner
+from jaxslam.runtime.executables import compile_runner, runner_tag
 from jaxslam.grid.filter import init, reset_status
 from jaxslam.grid.paged import PagedLayout, grow
 from jaxslam.grid.types import GridSlamConfig
-from jaxslam.keys import split_keys
-from jaxslam.progress import log, run_scan_chunked
+from jaxslam.runtime.keys import split_keys
+from jaxslam.runtime.progress import log, run_scan_chunked
 
 
 DEFAULT_CHUNK = 256
@@ -70,15 +70,15 @@ def summarise(info) -> dict[str, Any]:
 
 def chunk_runner(step_fn, config: GridSlamConfig):
     """The jitted chunk runner of ``step_fn`` under ``config``, keeping :func:`summarise`
-    of each step (cached: one per static config; :func:`jaxslam.driver.chunk_runner`),
-    compiled with jaxslam's XLA options (:mod:`jaxslam.compiler`)."""
+    of each step (cached: one per static config; :func:`jaxslam.runtime.driver.chunk_runner`),
+    compiled with jaxslam's XLA options (:mod:`jaxslam.runtime.compiler`)."""
     return shared_chunk_runner(step_fn, config, summarise, compiler_options())
 
 
 @dataclass
 class RunStats:
     """How the maps grew during a run, its times, and the XLA options its programs
-    were compiled with (:mod:`jaxslam.compiler`)."""
+    were compiled with (:mod:`jaxslam.runtime.compiler`)."""
 
     growths: list[dict[str, Any]] = field(default_factory=list)
     compile_s: float = 0.0
@@ -97,7 +97,7 @@ def recompilations(growths: list[dict[str, Any]]) -> int:
 
 
 def compiler_options() -> tuple:
-    """jaxslam's XLA options for the grid programs (:func:`jaxslam.compiler.options`),
+    """jaxslam's XLA options for the grid programs (:func:`jaxslam.runtime.compiler.options`),
     as sorted ``(name, value)`` pairs (a cache key)."""
     return tuple(sorted(options().items()))
 
@@ -132,7 +132,7 @@ def _init_runner(config: GridSlamConfig, compiler_options: tuple):
 
 def _init(key, params, config: GridSlamConfig, first_scan, initial_pose):
     """``init``, its lowered program kept on disk like the chunk runner's
-    (:mod:`jaxslam.executables`): a warm run does not trace it."""
+    (:mod:`jaxslam.runtime.executables`): a warm run does not trace it."""
     args = (key, params, first_scan, initial_pose)
     runner = _init_runner(config, compiler_options())
     return compile_runner(runner, *args)[0](*args)
@@ -177,7 +177,7 @@ def run_filter(
     """
     stats = RunStats()
     steps = observations.ranges.shape[0]
-    keys = split_keys(key, steps)  # jaxslam.driver.step_keys's bits, made on the host (jaxslam.keys)
+    keys = split_keys(key, steps)  # jaxslam.runtime.driver.step_keys's bits, made on the host (jaxslam.runtime.keys)
     init_key = key  # init is deterministic; it takes the key only for the protocol
     xs = (keys, controls, observations)
     if checkpoint is not None and checkpoint.resume and checkpoint.path.exists():

@@ -43,7 +43,7 @@ from jaxslam.grid.range_rule import apply_range_rule
 from jaxslam.grid.recovery import RECOVER_RADIUS
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
-from jaxslam.keys import seed_key
+from jaxslam.runtime.keys import seed_key
 from jaxslam.metrics.trajectory_io import se2_between
 
 ALGORITHMS = algorithms("laser")
@@ -80,7 +80,7 @@ class GridSlamResult:
         growths: each growth of the maps (step, what grew, new sizes, whether it
             recompiled: a moved page table does not).
         compiler_options: the XLA options the run's programs were compiled with
-            (:mod:`jaxslam.compiler`).
+            (:mod:`jaxslam.runtime.compiler`).
     """
 
     algorithm: str
@@ -304,8 +304,8 @@ def run_grid_slam(
         dtype: float dtype of poses and params.
         chunk: scans per compiled chunk (:data:`jaxslam.grid.driver.DEFAULT_CHUNK`);
             the result does not depend on it.
-        checkpoint: a :class:`jaxslam.checkpoint.Checkpoint` to save the state every N
-            scans and/or resume from it (see :func:`jaxslam.progress.run_scan_chunked`).
+        checkpoint: a :class:`jaxslam.runtime.checkpoint.Checkpoint` to save the state every N
+            scans and/or resume from it (see :func:`jaxslam.runtime.progress.run_scan_chunked`).
     """
     name = _dataset_name(log_or_sim)
     log = log_or_sim if isinstance(log_or_sim, CarmenLog) else load_dataset_log(log_or_sim)

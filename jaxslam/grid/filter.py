@@ -17,8 +17,8 @@ unchanged with ``status`` set, later steps pass through (:func:`guard`), and the
 host grows the maps and repeats the step (:func:`jaxslam.grid.driver.run`).
 
 Best particle: the particle with the largest accumulated log-likelihood
-(GMapping's ``weightSum``), :func:`jaxslam.driver.best_particle`, the meaning both
-filter families share (see :mod:`jaxslam.driver`).
+(GMapping's ``weightSum``), :func:`jaxslam.runtime.driver.best_particle`, the meaning both
+filter families share (see :mod:`jaxslam.runtime.driver`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
-from jaxslam.driver import best_particle
+from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.closure import MEMORY
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.matching import gmapping_basis, hill_climb

@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxslam.driver import scan_runner
+from jaxslam.runtime.driver import scan_runner
 from jaxslam.grid.filter import (
     coarse_start,
     finish_step,

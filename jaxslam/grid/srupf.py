@@ -70,7 +70,7 @@ from jax.scipy.linalg import cho_solve
 from jaxslam.core import se2
 from jaxslam.core.sigma import UTParams
 from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
-from jaxslam.driver import scan_runner
+from jaxslam.runtime.driver import scan_runner
 from jaxslam.grid.filter import (
     coarse_start,
     finish_step,

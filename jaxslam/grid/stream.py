@@ -43,10 +43,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.compiler import jit
+from jaxslam.runtime.compiler import jit
 from jaxslam.datasets.geometry import se2_between
 from jaxslam.datasets.rosbag import interpolate_odometry
-from jaxslam.driver import step_keys
+from jaxslam.runtime.driver import step_keys
 from jaxslam.grid import driver, gmapping, srupf
 from jaxslam.grid.undone_closures import judge_at_end, reported_undo
 from jaxslam.grid.experiment import best_trajectory, keyframe_rule, make_config, map_layout

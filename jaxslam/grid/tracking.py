@@ -130,7 +130,7 @@ from jax import Array
 
 from jaxslam.core import se2
 from jaxslam.datasets.geometry import se2_compose
-from jaxslam.driver import best_particle
+from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.closure import close_loop, record_applied
 from jaxslam.grid.undone_closures import take_back
 from jaxslam.grid.filter import coarse_start, empty_info, match_geometry, particle_reader, score_model

@@ -143,7 +143,7 @@ class RerunLog:
         """A ``callback(carry, steps_done)`` for :func:`run_landmark_slam`: particles and
         the best particle's landmarks after each chunk."""
 
-        from jaxslam.driver import best_particle
+        from jaxslam.runtime.driver import best_particle
 
         def callback(carry, done):
             state = carry[0]

@@ -6,10 +6,10 @@ import json
 
 import pytest
 
-from jaxslam.calibrate.cli import load_params_file
-from jaxslam.cli import main
+from jaxslam.app.calibrate import load_params_file
+from jaxslam.app.cli import main
 from jaxslam.datasets.paths import DataFormatError
-from jaxslam.runs import RunError
+from jaxslam.app.runs import RunError
 
 
 def test_params_file_errors(tmp_path):

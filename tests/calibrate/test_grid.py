@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxslam.calibrate import grid as G
-from jaxslam.cli import main
+from jaxslam.app.cli import main
 from jaxslam.datasets.laser_sim import simulate
 from jaxslam.grid import srupf
 from jaxslam.grid.experiment import run_grid_slam

@@ -11,7 +11,7 @@ import pytest
 
 from jaxslam.calibrate import landmark as L
 from jaxslam.datasets.landmark_sim import simulate
-from jaxslam.driver import step_keys
+from jaxslam.runtime.driver import step_keys
 from jaxslam.feature import filter as F
 from jaxslam.feature.experiment import params_for
 from jaxslam.feature.params import Config

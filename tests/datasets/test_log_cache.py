@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from jaxslam import runs
+from jaxslam.app import runs
 from jaxslam.datasets import log_cache
 from jaxslam.datasets.carmen import load_carmen
 from jaxslam.datasets.log_cache import entry_path, load_carmen_cached
@@ -76,7 +76,7 @@ def test_changed_file_and_other_options_are_read_again(tmp_path):
 
 
 def test_source_digest_is_part_of_the_key(tmp_path, monkeypatch):
-    import jaxslam.executables as executables
+    import jaxslam.runtime.executables as executables
 
     log_path = _write(tmp_path, GOOD)
     a = entry_path(tmp_path, log_path, {})

@@ -131,7 +131,7 @@ def test_a_path_gets_what_the_name_gets():
 
 
 def test_cli_max_range_option(tmp_path):
-    from jaxslam import cli, runs
+    from jaxslam.app import cli, runs
 
     args = cli.build_parser().parse_args(["run", "--dataset", "x.clf", "--max-range", "50", "--out", str(tmp_path)])
     assert args.max_range == 50.0

@@ -80,7 +80,7 @@ def test_grid_slam_on_bag_is_bit_identical(reference, bags):
 
 @pytest.mark.long
 def test_cli_run_on_bag_is_bit_identical(reference, bags, tmp_path, capsys):
-    from jaxslam import cli
+    from jaxslam.app import cli
     from jaxslam.metrics.trajectory_io import read_tum
 
     out = tmp_path / "run"
@@ -122,7 +122,7 @@ def _check_recording(path, reference):
 
 
 def test_cli_inspect_and_bag_errors(bags, tmp_path, capsys):
-    from jaxslam import cli
+    from jaxslam.app import cli
 
     assert cli.main(["datasets", "--inspect", str(bags["ros2-mcap-odom"])]) == 0
     out = capsys.readouterr().out

@@ -14,7 +14,7 @@ from filterpy.kalman import MerweScaledSigmaPoints
 
 from jaxslam.core.sigma import unscented_transform
 from jaxslam.datasets.landmark_sim import simulate
-from jaxslam.driver import best_particle
+from jaxslam.runtime.driver import best_particle
 from jaxslam.feature import filter as F
 from jaxslam.feature import particle as P
 from jaxslam.feature.experiment import params_for, run_landmark_slam

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from jaxslam.datasets.landmark_sim import simulate
 from jaxslam.datasets.paths import DatasetNotFoundError
-from jaxslam.driver import step_keys
+from jaxslam.runtime.driver import step_keys
 from jaxslam.feature import filter as F
 from jaxslam.feature import particle as P
 from jaxslam.feature.experiment import params_for, run_landmark_slam

@@ -52,10 +52,10 @@ def test_short_real_log_run():
 
 
 def test_grid_programs_compiled_with_jaxslam_options_equal_xla_defaults(monkeypatch):
-    """The grid programs are compiled with jaxslam's XLA options (jaxslam.compiler) and
+    """The grid programs are compiled with jaxslam's XLA options (jaxslam.runtime.compiler) and
     compute bit for bit what XLA's defaults compute: the run of the test above (its
     compiled program reused here) against the same run with JAXSLAM_XLA_OPTIONS=xla."""
-    from jaxslam import compiler
+    from jaxslam.runtime import compiler
     from jaxslam.grid import driver, gmapping
 
     monkeypatch.delenv(compiler.ENV_VAR, raising=False)

@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib.image import imread  # noqa: E402
 
-from jaxslam import plotting  # noqa: E402
+from jaxslam.app import plotting  # noqa: E402
 from jaxslam.grid import export  # noqa: E402
 
 

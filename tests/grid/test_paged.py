@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxslam.checkpoint import Checkpoint
+from jaxslam.runtime.checkpoint import Checkpoint
 from jaxslam.datasets.laser_sim import simulate
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.grid.experiment import run_grid_slam

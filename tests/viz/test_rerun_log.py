@@ -60,7 +60,7 @@ def test_missing_rerun_names_the_install_command(monkeypatch, tmp_path, capsys):
     monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun now raises ImportError
     with pytest.raises(ImportError, match='pip install "jaxslam\\[viz\\]"'):
         require_rerun()
-    from jaxslam import cli
+    from jaxslam.app import cli
 
     with pytest.raises(SystemExit) as info:
         cli.main(["run", "--dataset", "sim-laser", "--out", str(tmp_path / "x"), "--rerun", str(tmp_path / "x.rrd")])

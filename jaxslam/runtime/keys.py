@@ -7,7 +7,7 @@ compiled again for every step count ``n``). A cold grid run compiled the three i
 0.7 s of XLA time and looked them up in the compilation cache when warm, before its
 filter's own programs. The driver (:func:`jaxslam.grid.driver.run_filter`) and
 :func:`jaxslam.grid.experiment.run_grid_slam` make their keys here instead; inside a
-traced program :func:`jaxslam.driver.step_keys` stays ``jax.random.split``.
+traced program :func:`jaxslam.runtime.driver.step_keys` stays ``jax.random.split``.
 
 JAX's default key is a pair of 32-bit words. ``PRNGKey(seed)`` is :math:`(k_1, k_2) =
 (\lfloor s / 2^{32} \rfloor, s \bmod 2^{32})` of the seed as JAX's integer type (so a

@@ -48,7 +48,7 @@ def code_digest() -> str:
     compiler builds the programs (see the module docstring)."""
     import jaxlib
 
-    root = Path(__file__).resolve().parent
+    root = Path(__file__).resolve().parents[1]
     digest = hashlib.sha256(f"jax {jax.__version__} jaxlib {jaxlib.__version__}\0".encode())
     for path in sorted(root.rglob("*.py")):
         digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")

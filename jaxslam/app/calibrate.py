@@ -65,8 +65,8 @@ def run(args) -> dict[str, Any]:
     import jax.numpy as jnp
 
     from jaxslam.calibrate.fit import calibrate
-    from jaxslam.outputs import write_json
-    from jaxslam.runs import RunError, resolve_dataset
+    from jaxslam.app.outputs import write_json
+    from jaxslam.app.runs import RunError, resolve_dataset
 
     if args.algorithm not in LANDMARK + GRID:
         raise RunError(f"calibrate supports the landmark filters ({', '.join(LANDMARK)}) and {', '.join(GRID)}; "
@@ -95,7 +95,7 @@ def run(args) -> dict[str, Any]:
                                **options)
         else:
             from jaxslam.calibrate.grid import calibrate_grid
-            from jaxslam.runs import _load_log
+            from jaxslam.app.runs import _load_log
 
             log, _ = _load_log(info, path, args.seed, None, None)
             out.mkdir(parents=True, exist_ok=True)
@@ -119,7 +119,7 @@ def plot_curve(payload: dict[str, Any], path: Path, title: str | None = None) ->
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from jaxslam.plotting import save
+    from jaxslam.app.plotting import save
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     ax1.plot(payload["log_likelihood"], label="objective (fitted scans)")
@@ -158,7 +158,7 @@ def load_params_file(path: str | Path) -> dict[str, float]:
     lists for a vector parameter such as SRUPF-GM's ``match_noise``), for ``jaxslam
     run --params``; a clear error for a missing or malformed file."""
     from jaxslam.datasets.paths import DataFormatError
-    from jaxslam.runs import RunError
+    from jaxslam.app.runs import RunError
 
     path = Path(path)
     if not path.exists():

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxslam.datasets.registry import ALGORITHMS
-from jaxslam.outputs import json_default
+from jaxslam.app.outputs import json_default
 
 EPILOG = """examples:
   jaxslam run --out runs/demo                      simulated landmark world, ERB, 100 particles
@@ -160,7 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     ds.add_argument("--inspect", type=Path, default=None, metavar="BAG",
                     help="list the topics of a ROS bag: types, message counts, rates")
 
-    from jaxslam.calibrate.cli import add_parser as add_calibrate_parser
+    from jaxslam.app.calibrate import add_parser as add_calibrate_parser
 
     add_calibrate_parser(sub, _positive_int, _nonneg_int)
 
@@ -199,8 +199,8 @@ def cmd_datasets(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from jaxslam.cache import ENV_VAR as CACHE_ENV_VAR
-    from jaxslam.cache import enable_compilation_cache
+    from jaxslam.runtime.cache import ENV_VAR as CACHE_ENV_VAR
+    from jaxslam.runtime.cache import enable_compilation_cache
 
     if not args.list_params:
         try:
@@ -217,10 +217,10 @@ def cmd_run(args) -> int:
 
 
 def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
-    """``jaxslam run``: the parsed arguments as a call of :func:`jaxslam.runs.run`
+    """``jaxslam run``: the parsed arguments as a call of :func:`jaxslam.app.runs.run`
     (``--list-params`` prints the parameters instead; ``--resume`` repeats the
     arguments saved in the folder's ``run.json``)."""
-    from jaxslam import runs
+    from jaxslam.app import runs
     from jaxslam.datasets.paths import DataFormatError
     from jaxslam.datasets.registry import DEFAULT_ALGORITHM
 
@@ -248,7 +248,7 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
         raise runs.RunError("--out is required (the folder the outputs go to)")
     overrides = dict(args.overrides or [])
     if getattr(args, "params", None) is not None:
-        from jaxslam.calibrate.cli import load_params_file
+        from jaxslam.app.calibrate import load_params_file
 
         overrides = {**load_params_file(args.params), **overrides}
     return runs.run(
@@ -264,7 +264,7 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
 
 
 def cmd_evaluate(args) -> int:
-    from jaxslam import runs
+    from jaxslam.app import runs
 
     scores = runs.evaluate(args.trajectory, relations=args.relations, gps=args.gps)
     text = json.dumps(scores, indent=2, default=json_default)
@@ -276,7 +276,7 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from jaxslam.outputs import replot
+    from jaxslam.app.outputs import replot
 
     for path in replot(args.folder):
         print(path)
@@ -284,7 +284,7 @@ def cmd_plot(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from jaxslam.calibrate.cli import run as run_calibrate
+    from jaxslam.app.calibrate import run as run_calibrate
 
     print(json.dumps(run_calibrate(args), indent=2, default=json_default))
     return 0
@@ -295,7 +295,7 @@ COMMANDS = {"calibrate": cmd_calibrate, "run": cmd_run, "evaluate": cmd_evaluate
 
 def main(argv: list[str] | None = None) -> int:
     from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
-    from jaxslam.runs import RunError
+    from jaxslam.app.runs import RunError
 
     parser = build_parser()
     args = parser.parse_args(argv)

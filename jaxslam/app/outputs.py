@@ -8,7 +8,7 @@
 * ``arrays.npz`` — the data the figures are drawn from, so that :func:`replot` (``jaxslam
   plot``) redraws ``trajectory.png`` or ``map_trajectory.png`` and ``health.png``.
 
-Host-side NumPy; matplotlib only inside :func:`replot` (via :mod:`jaxslam.plotting`).
+Host-side NumPy; matplotlib only inside :func:`replot` (via :mod:`jaxslam.app.plotting`).
 """
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ def write_with_figures(out: Path, write_files, arrays: dict | None) -> None:
 
 
 def prefetch_plotting() -> threading.Thread:
-    """Import matplotlib and :mod:`jaxslam.plotting` on a background thread.
+    """Import matplotlib and :mod:`jaxslam.app.plotting` on a background thread.
 
     Importing matplotlib takes about a second, as long as the filter loop of a short
     run; a run starts this before its filter, so that the import overlaps the loop
@@ -150,7 +150,7 @@ def prefetch_plotting() -> threading.Thread:
     wait for an import under way)."""
 
     def load():
-        import jaxslam.plotting  # noqa: F401
+        import jaxslam.app.plotting  # noqa: F401
 
     thread = threading.Thread(target=load, name="jaxslam-prefetch-plotting", daemon=True)
     thread.start()
@@ -161,7 +161,7 @@ def replot(folder: str | Path, arrays: dict | None = None) -> list[Path]:
     """Draw the figures of an output folder from its ``arrays.npz``, or from ``arrays``
     (what :func:`grid_arrays` or :func:`landmark_arrays` gave; a run draws its figures
     from memory while the file is written)."""
-    from jaxslam import plotting
+    from jaxslam.app import plotting
 
     folder = Path(folder)
     if arrays is not None:

@@ -30,7 +30,7 @@ arbitrary particle, and the grid filters temper their weights (``weight_gain``).
 static config, cached per ``(step, config, summary)``: the CLI, the notebooks and the
 benchmarks run through it, so a sweep over ``Params`` (traced) never recompiles. With
 the compilation cache on, the compiled runner is also kept on disk
-(:mod:`jaxslam.executables`): a later process loads it without tracing.
+(:mod:`jaxslam.runtime.executables`): a later process loads it without tracing.
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from jaxslam.executables import runner_tag
-from jaxslam.progress import make_chunk_runner
+from jaxslam.runtime.executables import runner_tag
+from jaxslam.runtime.progress import make_chunk_runner
 
 
 def step_keys(key: Array, num_steps: int) -> Array:
@@ -93,7 +93,7 @@ def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None, c
     """The jitted chunk runner of ``step_fn`` under ``config`` (cached: one per static
     config). Its carry is ``(state, params)``, its inputs ``(key, control, observation)``
     per step, its outputs ``summary(info)`` (``info`` itself by default);
-    ``compiler_options``: XLA's, as ``(name, value)`` pairs (:mod:`jaxslam.compiler`)."""
+    ``compiler_options``: XLA's, as ``(name, value)`` pairs (:mod:`jaxslam.runtime.compiler`)."""
 
     def body(carry, x):
         state, params = carry

@@ -20,7 +20,7 @@ Every program is cached, however small or quick to compile
 small programs besides the filter's scan, and together they cost seconds. JAX keys
 each entry by the program text, the compile options, the JAX/XLA versions and the
 device; jaxslam adds the CPUs the process may use and XLA's thread pool
-(:func:`jaxslam.compiler.compile_environment`, through JAX's ``custom_hook`` of its
+(:func:`jaxslam.runtime.compiler.compile_environment`, through JAX's ``custom_hook`` of its
 cache key), which change what XLA's CPU compiler builds but which JAX's key leaves out.
 So a stale entry is never used, and a cached executable computes bit for bit what a
 freshly compiled one computes in the same process (``tests/test_cache.py`` checks
@@ -28,7 +28,7 @@ both: a run with one thread after one with two, or pinned to one core after an
 unpinned one, compiles its own programs).
 
 The filters' chunk runners and the grid ``init`` are also kept there already traced
-and lowered (subfolder ``exports``, :mod:`jaxslam.executables`), so that a warm run
+and lowered (subfolder ``exports``, :mod:`jaxslam.runtime.executables`), so that a warm run
 skips tracing them too; those entries are keyed by the jaxslam sources as well.
 
 The cache is trusted code: do not point it at a folder that others can write to.
@@ -36,7 +36,7 @@ The cache is trusted code: do not point it at a folder that others can write to.
 Library users call :func:`enable_compilation_cache` once, before the first
 compilation (JAX reads the folder when it first compiles)::
 
-    from jaxslam.cache import enable_compilation_cache
+    from jaxslam.runtime.cache import enable_compilation_cache
     enable_compilation_cache()            # or enable_compilation_cache("/scratch/jax")
 
 :class:`CompileCounter` counts what was compiled and what came from the cache, from
@@ -127,12 +127,12 @@ def enable_compilation_cache(cache_dir: os.PathLike | str | None = None) -> Path
 
 
 def _key_the_compile_environment() -> None:
-    """Add :func:`jaxslam.compiler.compile_environment` to every persistent-cache key
+    """Add :func:`jaxslam.runtime.compiler.compile_environment` to every persistent-cache key
     (JAX's ``cache_key.custom_hook``, called each time a key is made, so a thread pool
     sized after the cache was turned on is keyed as well). Once per process."""
     from jax._src import cache_key
 
-    from jaxslam.compiler import compile_environment
+    from jaxslam.runtime.compiler import compile_environment
 
     previous = getattr(cache_key, "custom_hook", None)
     if previous is None:  # every JAX this project supports (>= 0.4.30) has it

@@ -1,6 +1,6 @@
 """Traced and lowered chunk runners kept on disk, so that a warm run does not trace.
 
-JAX's persistent compilation cache (:mod:`jaxslam.cache`) saves XLA's work, but each
+JAX's persistent compilation cache (:mod:`jaxslam.runtime.cache`) saves XLA's work, but each
 process still traces the filter's step in Python and lowers it to StableHLO before it
 can look the program up: seconds for the grid filters (about 5 s of the 6 s of
 ``compile_s`` of a warm Intel run on a loaded 2-core machine), paid by every run. This
@@ -52,7 +52,7 @@ SUBFOLDER = "exports"
 @functools.lru_cache(maxsize=1)
 def source_digest() -> str:
     """SHA-256 of the paths and bytes of every ``.py`` file of the ``jaxslam`` package."""
-    root = Path(__file__).resolve().parent
+    root = Path(__file__).resolve().parents[1]
     digest = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
         digest.update(str(path.relative_to(root)).encode())
@@ -166,7 +166,7 @@ def _compile(runner, tag, path: Path, args, leaves, in_tree):
     if not loaded:
         shapes = {}
         # The jitted runner's own function: JAX refuses a nested jit that carries
-        # compiler options (jaxslam.compiler), and the program is the same.
+        # compiler options (jaxslam.runtime.compiler), and the program is the same.
         function = getattr(runner, "__wrapped__", runner)
 
         def flat(*flat_args):

@@ -3,11 +3,11 @@
 ``run(...)`` resolves a dataset (a name in :mod:`jaxslam.datasets.registry`, a path to
 a CARMEN log or a ROS bag, or a built-in simulator), runs the chosen filter, scores it
 as the registry says (:mod:`jaxslam.metrics.scoring`: relations, GPS or ground truth)
-and writes an output folder (:mod:`jaxslam.outputs`): ``summary.json`` — what was run
+and writes an output folder (:mod:`jaxslam.app.outputs`): ``summary.json`` — what was run
 (algorithm, dataset, particles, seed, steps, ...), timings (``wall_s`` after
 compilation, ``compile_s`` apart), resamplings, scores — ``trajectory.tum``, the map or
 the landmarks, ``arrays.npz`` and the figures. The command line adapts its arguments
-to :func:`run` in :mod:`jaxslam.cli`.
+to :func:`run` in :mod:`jaxslam.app.cli`.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from jaxslam.compiler import cpus_allowed, set_threads
+from jaxslam.runtime.compiler import cpus_allowed, set_threads
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
-from jaxslam.outputs import prefetch_plotting, write_json, write_with_figures
+from jaxslam.app.outputs import prefetch_plotting, write_json, write_with_figures
 
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
@@ -96,12 +96,12 @@ def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
 def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
                  checkpoint=None, viz=None, prefetch=False):
     """Run a landmark filter on ``info``'s sequence and score it: ``(summary, arrays,
-    write_files)``, the figures' data (:func:`jaxslam.outputs.landmark_arrays`) and a
+    write_files)``, the figures' data (:func:`jaxslam.app.outputs.landmark_arrays`) and a
     function that writes the run's files. ``prefetch``: import the plotting module on
     a thread once the data is loaded."""
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.scoring import score_landmark_run
-    from jaxslam.outputs import landmark_arrays, write_landmark_outputs
+    from jaxslam.app.outputs import landmark_arrays, write_landmark_outputs
 
     loading = time.perf_counter()
     sequence = info.load(seed=seed, max_steps=max_steps)
@@ -171,12 +171,12 @@ def _log_cache_folder() -> str | None:
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
              checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False, loop_closure=None):
     """Run a grid filter on a laser log and score it: ``(summary, arrays, write_files)``,
-    the figures' data (:func:`jaxslam.outputs.grid_arrays`) and a function that writes
+    the figures' data (:func:`jaxslam.app.outputs.grid_arrays`) and a function that writes
     the run's files. ``prefetch``: import the plotting module on a thread once the log
     is loaded."""
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.metrics.scoring import score_grid_run
-    from jaxslam.outputs import grid_arrays, write_grid_outputs
+    from jaxslam.app.outputs import grid_arrays, write_grid_outputs
 
     name = info.name if info is not None else str(path)
     loading = time.perf_counter()
@@ -316,8 +316,8 @@ def run(
     SRUPF-GM, off for the GMapping-style filter, :func:`jaxslam.grid.experiment.closure_default`).
     ``run.json`` and a checkpoint's fingerprint record what ran, default or not.
     ``threads`` sizes XLA's CPU thread pool (a count or ``"all"``; default
-    ``$JAXSLAM_THREADS``, else :func:`jaxslam.compiler.auto_threads`):
-    :func:`jaxslam.compiler.set_threads`, which can act only before the process's
+    ``$JAXSLAM_THREADS``, else :func:`jaxslam.runtime.compiler.auto_threads`):
+    :func:`jaxslam.runtime.compiler.set_threads`, which can act only before the process's
     first JAX computation; ``summary.json`` ``xla_threads`` says what was in effect.
     """
     import jax
@@ -379,7 +379,7 @@ def run(
         run_args["loop_closure"] = loop_closure
     checkpoint = None
     if checkpoint_every is not None or resume:
-        from jaxslam.checkpoint import Checkpoint
+        from jaxslam.runtime.checkpoint import Checkpoint
 
         fingerprint = {k: v for k, v in run_args.items() if k not in ("chunk", "threads")}
         if kind == "laser":  # a default that changed between versions must not change a resumed run
@@ -395,7 +395,7 @@ def run(
             raise RunError(f"--resume: no checkpoint in {str(out)!r} (run with --checkpoint-every N first)")
     if not resume:
         write_json(out / "run.json", run_args)
-    from jaxslam.cache import CompileCounter
+    from jaxslam.runtime.cache import CompileCounter
 
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
@@ -428,7 +428,7 @@ def run(
     summary["overrides"] = overrides
     summary["jaxslam_version"] = __import__("jaxslam").__version__
     summary["jax_version"] = jax.__version__
-    # XLA programs compiled or loaded from the persistent cache (jaxslam.cache)
+    # XLA programs compiled or loaded from the persistent cache (jaxslam.runtime.cache)
     summary["compilations"] = compilations.as_dict()
     summary["cache_dir"] = jax.config.jax_compilation_cache_dir
     summary["xla_threads"] = xla_threads

@@ -5,7 +5,7 @@ The grid filters' programs that jaxslam compiles and runs itself (the chunk runn
 of :func:`jaxslam.grid.driver.run_filter`, which every CLI run, benchmark and notebook
 goes through, the ``init`` program, the streaming step and the grid calibration's
 objectives) are compiled with :func:`options`, through :func:`jit` (``jax.jit`` with
-``compiler_options``) or :func:`jaxslam.driver.chunk_runner`. Today that is two
+``compiler_options``) or :func:`jaxslam.runtime.driver.chunk_runner`. Today that is two
 options:
 
 * ``xla_cpu_use_fusion_emitters = False``. XLA's CPU backend can emit the loops of
@@ -56,7 +56,7 @@ JAX accepts compiler options only on a top-level ``jax.jit``, so the filters' pu
 ``init`` / ``step`` / ``run`` stay plain ``jax.jit`` functions that can be called
 inside a user's own ``jit``, ``vmap`` or ``grad``; a user who runs them as the
 top-level program gets XLA's defaults unless they pass the same options,
-``jax.jit(f, compiler_options=jaxslam.compiler.options())`` (or use :func:`jit`).
+``jax.jit(f, compiler_options=jaxslam.runtime.compiler.options())`` (or use :func:`jit`).
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ def options() -> dict[str, Any]:
 def jit_with(fun, compiler_options: dict[str, Any] | None, **kwargs):
     """``jax.jit(fun, **kwargs)`` compiled with exactly ``compiler_options`` (none when
     empty), which are kept on the result as ``jaxslam_compiler_options`` (a program
-    loaded from disk is compiled with them, :mod:`jaxslam.executables`)."""
+    loaded from disk is compiled with them, :mod:`jaxslam.runtime.executables`)."""
     import jax
 
     chosen = dict(compiler_options or {})
@@ -190,7 +190,7 @@ def compile_environment() -> str:
     gave one run compiled with one thread (``--threads 1``, or pinned with ``taskset -c
     0``) and another with two. jaxslam's grid programs now fix the split
     (:data:`OPTIONS`), but programs compiled with other options (the landmark filters,
-    a user's own) do not. JAX's cache key includes neither, so :mod:`jaxslam.cache`
+    a user's own) do not. JAX's cache key includes neither, so :mod:`jaxslam.runtime.cache`
     adds this string to it."""
     pool = thread_pool()
     return f"cpus={cpus_allowed()};threads={'all' if pool is None else pool}"

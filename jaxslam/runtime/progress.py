@@ -22,8 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.compiler import jit_with
-from jaxslam.executables import compile_runner
+from jaxslam.runtime.compiler import jit_with
+from jaxslam.runtime.executables import compile_runner
 
 StepFn = Callable[[Any, Any], tuple[Any, Any]]
 
@@ -68,10 +68,10 @@ def make_chunk_runner(
 ):
     """A jitted ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk.
 
-    ``tag`` (from :func:`jaxslam.executables.runner_tag`) names everything besides the
+    ``tag`` (from :func:`jaxslam.runtime.executables.runner_tag`) names everything besides the
     arguments that determines the program; with it the compiled runner is kept on disk
-    next to the compilation cache (:mod:`jaxslam.executables`). ``compiler_options``
-    are XLA's (:mod:`jaxslam.compiler`), kept on the runner as
+    next to the compilation cache (:mod:`jaxslam.runtime.executables`). ``compiler_options``
+    are XLA's (:mod:`jaxslam.runtime.compiler`), kept on the runner as
     ``jaxslam_compiler_options`` for the program loaded from disk."""
 
     # Jitted so that it is traced once: ``eval_shape`` below and the ``cond`` branch
@@ -164,7 +164,7 @@ def run_scan_chunked(
             buffers beyond the call (copy to host first).
         runner: a chunk runner from :func:`make_chunk_runner` to reuse (its compiled
             code is cached by JAX for equal shapes, so a sweep compiles once).
-        checkpoint: a :class:`jaxslam.checkpoint.Checkpoint`. With ``resume`` its file
+        checkpoint: a :class:`jaxslam.runtime.checkpoint.Checkpoint`. With ``resume`` its file
             (carry, outputs so far, position) replaces ``carry`` and ``start``; with
             ``every`` the state is saved atomically at chunk ends. A resumed run's
             ``ys`` cover all steps from 0 and equal those of an uninterrupted run.
@@ -264,7 +264,7 @@ def _check_prior(prior_leaves: list, ys, where: str) -> None:
     """The outputs of the steps before (a checkpoint's, or ``prior``) must be this
     run's outputs, array for array: a checkpoint written by another version of a
     filter (an output added or removed) is refused rather than joined wrongly."""
-    from jaxslam.checkpoint import CheckpointError
+    from jaxslam.runtime.checkpoint import CheckpointError
 
     leaves = jax.tree_util.tree_leaves(ys)
     same = len(leaves) == len(prior_leaves) and all(
