@@ -6,7 +6,8 @@
 * grid runs: ``map.pgm`` + ``map.yaml`` (ROS map_server convention) and ``map.png``
   (:func:`jaxslam.grid.export.save_map`);
 * ``arrays.npz`` — the data the figures are drawn from, so that :func:`replot` (``jaxslam
-  plot``) redraws ``trajectory.png`` or ``map_trajectory.png`` and ``health.png``.
+  plot``) redraws every figure of the folder: ``trajectory.png`` (landmark runs) or
+  ``map_trajectory.png`` and ``map.png`` (grid runs), and ``health.png``.
 
 Host-side NumPy; matplotlib only inside :func:`replot` (via :mod:`jaxslam.app.plotting`).
 """
@@ -160,7 +161,10 @@ def prefetch_plotting() -> threading.Thread:
 def replot(folder: str | Path, arrays: dict | None = None) -> list[Path]:
     """Draw the figures of an output folder from its ``arrays.npz``, or from ``arrays``
     (what :func:`grid_arrays` or :func:`landmark_arrays` gave; a run draws its figures
-    from memory while the file is written)."""
+    from memory while the file is written).
+
+    From the file, a grid run's ``map.png`` is redrawn too (the same pixels); a run
+    writes that one with the map files (:func:`write_grid_outputs`)."""
     from jaxslam.app import plotting
 
     folder = Path(folder)
@@ -188,6 +192,11 @@ def replot(folder: str | Path, arrays: dict | None = None) -> list[Path]:
         fig = plotting.plot_grid_map(data["log_odds"], float(data["resolution"]), data["origin"],
                                      trajectory=data["trajectory"], title=title)
         written.append(plotting.save(fig, folder / "map_trajectory.png"))
+        if arrays is None:
+            from jaxslam.grid.export import save_map_png
+
+            written.append(save_map_png(folder / "map.png", data["log_odds"], float(data["resolution"]),
+                                        data["origin"], trajectory=data["trajectory"]))
     wv = data["weight_variance"] if "weight_variance" in data and data["weight_variance"].size else None
     fig = plotting.plot_filter_health(data["ess"], data["resampled"], int(data["particles"]), wv, title=title)
     written.append(plotting.save(fig, folder / "health.png"))

@@ -207,6 +207,29 @@ def save_map(
     paths = {"pgm": out / f"{name}.pgm", "yaml": out / f"{name}.yaml", "png": out / f"{name}.png"}
     write_pgm(paths["pgm"], image)
     write_map_yaml(paths["yaml"], paths["pgm"].name, resolution, origin, occupied_thresh, free_thresh)
+    _write_map_image(paths["png"], image, resolution, origin, trajectory)
+    return paths
+
+
+def save_map_png(
+    path: os.PathLike | str,
+    log_odds: np.ndarray,
+    resolution: float,
+    origin: tuple[float, float],
+    occupied_thresh: float = 0.65,
+    free_thresh: float = 0.196,
+    trajectory: np.ndarray | None = None,
+) -> Path:
+    """Write the PNG of :func:`save_map` alone (the same pixels), as ``jaxslam plot``
+    redraws it from a run's ``arrays.npz``; the arguments are :func:`save_map`'s."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _write_map_image(path, occupancy_image(log_odds, occupied_thresh, free_thresh), resolution, origin, trajectory)
+    return path
+
+
+def _write_map_image(path: Path, image: np.ndarray, resolution: float, origin, trajectory) -> None:
+    """``image`` (:func:`occupancy_image`) as PNG, the cells the trajectory passes red."""
     marks = None
     if trajectory is not None:
         traj = np.asarray(trajectory, np.float64)[:, :2]
@@ -214,8 +237,7 @@ def save_map(
         rows = image.shape[0] - 1 - np.floor((traj[:, 1] - origin[1]) / resolution).astype(int)
         ok = (cols >= 0) & (cols < image.shape[1]) & (rows >= 0) & (rows < image.shape[0])
         marks = (rows[ok], cols[ok])
-    write_png(paths["png"], image, marks=marks)
-    return paths
+    write_png(path, image, marks=marks)
 
 
 __all__ = [
@@ -226,6 +248,7 @@ __all__ = [
     "read_pgm",
     "row_blocks",
     "save_map",
+    "save_map_png",
     "write_map_yaml",
     "write_pgm",
     "write_png",
