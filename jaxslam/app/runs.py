@@ -412,7 +412,7 @@ def run(
         extra["loop_closure"] = bool(loop_closure)
     if bag:
         extra["bag"] = bag
-    viz = _open_viz(rerun, rerun_spawn, dataset_name)
+    viz = _open_viz(rerun, rerun_spawn, Path(dataset_name).name)
     if viz is not None:
         extra["viz"] = viz
     precision = jax.enable_x64(True) if float64 else contextlib.nullcontext()

@@ -26,6 +26,7 @@ Rerun is an optional dependency; without it :func:`require_rerun` raises an
 from __future__ import annotations
 
 import os
+import re
 from typing import Any
 
 import numpy as np
@@ -63,13 +64,23 @@ def _xyz(xy: np.ndarray) -> np.ndarray:
     return np.concatenate([xy, np.zeros((xy.shape[0], 1))], axis=1).astype(np.float32)
 
 
+def application_id(name: str) -> str:
+    """``name`` as a Rerun application id: characters other than ASCII letters, digits,
+    space, ``-``, ``_`` and ``:`` (a path's ``/`` and ``.``) become ``-``.
+
+    Rerun (0.41, the version of the ``viz`` extra) takes only such ids; it rewrites
+    any other one itself, with a warning that its native logger prints straight to
+    the terminal (raw ANSI colours), out of reach of Python's warnings and logging."""
+    return re.sub(r"[^A-Za-z0-9 _:-]+", "-", name).strip() or "jaxslam"
+
+
 class RerunLog:
     """One Rerun recording of a run.
 
     Args:
         path: write the recording to this ``.rrd`` file.
         spawn: also open (or connect to) a viewer.
-        name: the recording's application id.
+        name: the recording's application id (as :func:`application_id` makes it valid).
     """
 
     def __init__(self, path: os.PathLike | str | None = None, spawn: bool = False, name: str = "jaxslam"):
@@ -77,7 +88,7 @@ class RerunLog:
         if path is None and not spawn:
             raise ValueError("give a path for the .rrd file, spawn=True, or both")
         self.rr = rr
-        self.stream = rr.RecordingStream(name)
+        self.stream = rr.RecordingStream(application_id(name))
         sinks = []
         if path is not None:
             sinks.append(rr.FileSink(str(path)))

@@ -90,3 +90,22 @@ def test_landmarks_and_health_read_back(tmp_path):
     assert len(strips) == 2
     np.testing.assert_allclose(np.array(strips[1])[:, :2], ellipse_points(means[1], covs[1]), atol=1e-5)
     assert len(rows["/world/particles"][-1]["Points3D:positions"]) == 2
+
+
+def test_a_path_as_the_recordings_name_prints_nothing(tmp_path, capfd):
+    """Rerun rewrites an application id with a path's ``/`` and ``.`` itself and prints
+    a raw warning from its native logger (fd 2, out of reach of Python's warnings); the
+    id is made valid first, so nothing reaches the terminal."""
+    rr = pytest.importorskip("rerun")
+    from jaxslam.viz.rerun_log import RerunLog, application_id
+
+    assert application_id("jaxslam /data/robot.bag") == "jaxslam -data-robot-bag"
+    assert application_id("jaxslam intel-corrected_2:a") == "jaxslam intel-corrected_2:a"
+    viz = RerunLog(tmp_path / "path.rrd", name="jaxslam /data/runs/intel.clf.gz")
+    viz.at(0, 1.0)
+    viz.health(2.0, False)
+    viz.close()
+    assert rr.get_application_id(recording=viz.stream) == "jaxslam -data-runs-intel-clf-gz"
+    assert read_rrd(tmp_path / "path.rrd")["/health/ess"][0]["Scalars:scalars"] == [2.0]
+    captured = capfd.readouterr()
+    assert captured.err == "" and captured.out == ""
