@@ -35,21 +35,36 @@ def _kind_of(algorithm: str) -> str:
     return ALGORITHMS[algorithm]
 
 
+CARMEN_SUFFIXES = (".clf", ".log", ".carmen", ".gz")
+"""Names of CARMEN logs (plain or gzipped; any existing file is read as one unless it
+is a ROS bag)."""
+
+FILE_KINDS = (
+    "a CARMEN log file (.clf, .log or .carmen, plain or gzipped as .gz), a ROS 1 bag (.bag) or a ROS 2 bag "
+    "(its folder, with metadata.yaml, or its .db3 or .mcap file)"
+)
+"""The files ``--dataset`` accepts besides the dataset names (:func:`resolve_dataset`)."""
+
+
 def resolve_dataset(dataset: str | None, algorithm: str | None) -> tuple[DatasetInfo | None, Path | None, str]:
-    """``(info, path, kind)`` for a dataset name, a path to a CARMEN log, or None."""
+    """``(info, path, kind)`` for a dataset name, a path to a CARMEN log or a ROS bag,
+    or None (the built-in simulator that suits ``algorithm``)."""
+    from jaxslam.datasets.rosbag import ROSBAG_SUFFIXES
+
     if dataset is None:
         kind = _kind_of(algorithm) if algorithm else "landmark"
         return lookup("sim-landmarks" if kind == "landmark" else "sim-laser"), None, kind
     candidate = Path(dataset).expanduser()
-    if candidate.suffix in {".clf", ".log", ".gz", ".carmen", ".bag", ".mcap", ".db3"} or candidate.exists():
+    if candidate.suffix in CARMEN_SUFFIXES + ROSBAG_SUFFIXES or candidate.exists():
         if not candidate.exists():
-            what = "ROS bag" if candidate.suffix in {".bag", ".mcap", ".db3"} else "CARMEN log"
+            what = "ROS bag" if candidate.suffix in ROSBAG_SUFFIXES else "CARMEN log"
             raise DatasetNotFoundError(f"{what} {str(candidate)!r} does not exist")
         return None, candidate, "laser"
     try:
         info = lookup(dataset)
-    except KeyError as err:
-        raise RunError(err.args[0]) from None
+    except KeyError:
+        raise RunError(f"unknown dataset {dataset!r}: no such dataset name nor file; --dataset takes a dataset "
+                       f"name ({', '.join(DATASETS)}; `jaxslam datasets` says which are found), {FILE_KINDS}") from None
     return info, None, info.kind
 
 
@@ -467,7 +482,10 @@ def evaluate(trajectory: Path, relations: str | None = None, gps: str | None = N
         scores = relations_metric(load_relations(path), times, poses)
         scores["relations_file"] = str(path)
         return scores
-    info = lookup(gps)
+    try:
+        info = lookup(gps)
+    except KeyError as err:
+        raise RunError(f"--gps: {err.args[0]}") from None
     if not info.gps:
         with_gps = ", ".join(name for name, entry in DATASETS.items() if entry.gps)
         raise RunError(f"GPS scoring is available for {with_gps}, not {info.name!r}")

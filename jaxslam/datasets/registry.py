@@ -223,7 +223,7 @@ def lookup(name: str) -> DatasetInfo:
     for info in DATASETS.values():
         if key == info.name or key in info.aliases:
             return info
-    raise KeyError(f"unknown dataset {name!r}; known: {', '.join(DATASETS)} (or a path to a CARMEN log)")
+    raise KeyError(f"unknown dataset {name!r}; known: {', '.join(DATASETS)}")
 
 
 def for_file(path: Path | str) -> DatasetInfo | None:

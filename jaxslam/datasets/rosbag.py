@@ -107,12 +107,16 @@ __all__ = [
 _MAX_PROBLEMS = 100
 
 
+ROSBAG_SUFFIXES = (".bag", ".db3", ".mcap")
+"""A ROS 1 bag (``.bag``) or the file of a ROS 2 bag (SQLite ``.db3``, MCAP ``.mcap``)."""
+
+
 def is_rosbag(path: os.PathLike | str) -> bool:
     """True for a ROS 1 ``.bag``, a ROS 2 ``.mcap``/``.db3`` file, or a ROS 2 bag folder."""
     path = Path(path)
     if path.is_dir():
         return (path / "metadata.yaml").exists()
-    return path.suffix in (".bag", ".mcap", ".db3")
+    return path.suffix in ROSBAG_SUFFIXES
 
 
 @dataclasses.dataclass
