@@ -17,6 +17,7 @@ from typing import Any
 
 from jaxslam.datasets.registry import ALGORITHMS
 from jaxslam.app.outputs import json_default
+from jaxslam.metrics.scoring import MIN_MATCHED_FRACTION
 
 EPILOG = """examples:
   jaxslam run --out runs/demo                      simulated landmark world, ERB, 100 particles
@@ -32,8 +33,43 @@ EPILOG = """examples:
 """
 
 
+EVALUATE_DESCRIPTION = f"""\
+Score a TUM trajectory and print the scores as JSON. One line on standard error
+says how many of the relations (or GPS fixes) could be scored: those with poses
+at their stamps (within the trajectory's time span). It is a warning when fewer
+than {MIN_MATCHED_FRACTION:.0%} could (a trajectory of part of the log, or stamps other than the
+log's): the score then covers that part only.
+"""
+
+
 class CliError(Exception):
     """A user-facing error: printed without a traceback, exit status 2."""
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Each option's default shown once.
+
+    ``(default: X)`` is appended to an option's help only where the help does not
+    already say what the default is, and never for an option whose default is None,
+    False or empty (a flag, an option whose absence the help explains); argparse's
+    ``ArgumentDefaultsHelpFormatter`` appends it to every option, ``(default: None)``
+    included, after a help that states the default itself."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if "default" in text.lower() or default is None or default is False or default is argparse.SUPPRESS:
+            return text
+        if isinstance(default, (list, tuple, dict, str)) and not default:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose help uses :class:`HelpFormatter` (every subcommand's)."""
+
+    def __init__(self, *args, formatter_class=HelpFormatter, **kwargs):
+        super().__init__(*args, formatter_class=formatter_class, **kwargs)
 
 
 def _positive_int(text: str) -> int:
@@ -67,19 +103,17 @@ def _override(text: str) -> tuple[str, float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="jaxslam",
         description="Batched JAX particle filters for SLAM (RB/ERB unscented FastSLAM, SRUPF-GM, GMapping-style).",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
     run = sub.add_parser(
         "run",
         help="run a SLAM filter on a dataset or a built-in simulator and write its outputs",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     run.add_argument("--dataset", default=None,
                      help="dataset name (see `jaxslam datasets`), a path to a CARMEN log or to a ROS bag; "
@@ -87,12 +121,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--algorithm", choices=sorted(ALGORITHMS), default=None,
                      help="filter; default erb-upf for landmark data, srupf-gm for laser data")
     run.add_argument("--particles", type=_positive_int, default=None,
-                     help="number of particles (default: 100 landmark, 30 laser)")
-    run.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (recorded in summary.json)")
+                     help="number of particles (default: 100 for landmark data, 30 for laser data)")
+    run.add_argument("--seed", type=_nonneg_int, default=0, help="random seed, recorded in summary.json")
     run.add_argument("--out", type=Path, default=None, help="output folder (created; required unless --resume)")
     run.add_argument("--max-steps", type=_positive_int, default=None,
                      help="stop after this many filter steps (landmark data: scans; laser data: about this many "
-                          "keyframes, the log cut where the odometry rule reaches them)")
+                          "keyframes, the log cut where the odometry rule reaches them); default: the whole sequence")
     run.add_argument("--set", dest="overrides", type=_override, action="append", default=[], metavar="NAME=VALUE",
                      help="override a noise level or threshold of the filter's Params (repeatable); "
                           "`jaxslam run --list-params --algorithm A` lists names, units and defaults")
@@ -109,22 +143,26 @@ def build_parser() -> argparse.ArgumentParser:
                      help="CARMEN logs: range limit in m; readings at or beyond it are 'no return' (default: the "
                           "logged limit, lowered to a detected no-return sentinel pile, see summary.json no_return)")
     run.add_argument("--loop-closure", action=argparse.BooleanOptionalAction, default=None,
-                     help="laser data: where the tracking's match fails in a mapped place, search up to 4 m and "
-                          "8 deg around it and take a clearly better pose (closes large loops such as MIT "
-                          "Killian's; a closure whose beams keep ending in known free space over the next 5 m "
-                          "is undone). Default: on for srupf-gm, off for the GMapping-style filter")
+                     help="laser data: where the tracking's match fails in a mapped place, search up to 6 m "
+                          "(each axis) and 8 deg around it, after long travel without a closure up to 10 m (2 cm "
+                          "per m of odometry since the last one), and take a clearly better pose (closes large "
+                          "loops such as MIT Killian's; a closure whose beams keep ending in known free space over "
+                          "the next 5 m is undone). Default: on for srupf-gm, off for the GMapping-style filter")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",
                      help="save the full filter state (particles, maps, weights, position in the log) every N "
-                          "steps to OUT/checkpoint.npz, atomically")
+                          "steps to OUT/checkpoint.npz, atomically; default: none")
     run.add_argument("--resume", type=Path, default=None, metavar="DIR",
                      help="continue the run saved in DIR (its checkpoint.npz and run.json) with its original "
                           "arguments; the result equals an uninterrupted run")
     run.add_argument("--chunk", type=_positive_int, default=None,
-                     help="steps per compiled chunk (progress-bar granularity)")
+                     help="steps per compiled chunk (progress-bar granularity); default: 512 scans for landmark "
+                          "data (at most 50 with --rerun), 256 scans for laser data")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    run.add_argument("--json", action="store_true",
+                     help="print summary.json to standard output in place of the short summary")
     run.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
                      help="log the run to a Rerun recording as it goes: map, particles, best path, scans, ESS "
                           '(needs pip install "jaxslam[viz]")')
@@ -148,7 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="do not use the compilation cache nor the parsed-log cache (same as JAXSLAM_CACHE_DIR=off)")
 
     ev = sub.add_parser("evaluate", help="score a TUM trajectory (relations metric or GPS error)",
-                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                        description=EVALUATE_DESCRIPTION)
     ev.add_argument("--trajectory", type=Path, required=True, help="TUM trajectory file (timestamp x y z qx qy qz qw)")
     target = ev.add_mutually_exclusive_group(required=True)
     target.add_argument("--relations", help="Kümmerle et al. relations file, or a dataset name that has one "
@@ -211,8 +249,14 @@ def cmd_run(args) -> int:
             print(f"jaxslam run: warning: running without the compilation cache: {err}", file=sys.stderr)
 
     summary = run_from_args(args)
-    if summary is not None:
+    if summary is None:  # --list-params
+        return 0
+    if args.json:
         print(json.dumps(summary, indent=2, default=json_default))
+    else:
+        from jaxslam.app.runs import report
+
+        print(report(summary, args.resume if args.resume is not None else args.out))
     return 0
 
 
@@ -272,7 +316,22 @@ def cmd_evaluate(args) -> int:
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(text + "\n")
+    print(f"jaxslam evaluate: {coverage_text(scores)}", file=sys.stderr)
     return 0
+
+
+def coverage_text(scores: dict[str, Any]) -> str:
+    """How many relations (or GPS fixes) ``scores`` scored of how many, a warning below
+    :data:`jaxslam.metrics.scoring.MIN_MATCHED_FRACTION`."""
+    from jaxslam.metrics.scoring import matched_counts
+
+    scored, total, what = matched_counts(scores)
+    share = scored / total if total else 0.0
+    text = f"scored {scored} of {total} {what} ({share:.1%})"
+    if share >= MIN_MATCHED_FRACTION:
+        return text
+    return (f"warning: {text}, fewer than {MIN_MATCHED_FRACTION:.0%}: the others fall where the trajectory has "
+            f"no pose (a trajectory of part of the log?); the score covers the scored ones only")
 
 
 def cmd_plot(args) -> int:

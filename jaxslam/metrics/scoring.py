@@ -24,6 +24,23 @@ import numpy as np
 NEES_EXPECTED = 3.0
 """Expected pose NEES of a consistent filter: the pose has 3 degrees of freedom."""
 
+MIN_MATCHED_FRACTION = 0.9
+"""Below this share of the relations (or GPS fixes) scored, ``jaxslam evaluate`` warns
+that its score covers part of the reference only. A whole run matches all of them:
+every relation of Intel, FR079 and MIT Killian has a scan at both its stamps, and 26
+of Victoria Park's 4466 fixes (0.6 %) are dropped as jumps."""
+
+
+def matched_counts(scores: dict[str, Any]) -> tuple[int, int, str] | None:
+    """``(scored, total, what)`` of a score dict: the relations scored of those in the
+    file (:func:`jaxslam.metrics.relations.relations_metric`), or the GPS fixes used of
+    those loaded (:func:`jaxslam.metrics.gps.gps_error`); None for other scores."""
+    if "n_relations" in scores and "n_total" in scores:
+        return int(scores["n_relations"]), int(scores["n_total"]), "relations"
+    if "n_used" in scores and "n_skipped" in scores:
+        return int(scores["n_used"]), int(scores["n_used"]) + int(scores["n_skipped"]), "GPS fixes"
+    return None
+
 
 def position_errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Mean, RMS and largest distance between the positions of two ``(T, >=2)`` pose
