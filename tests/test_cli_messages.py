@@ -96,7 +96,7 @@ def test_run_ends_with_a_short_report_and_prints_the_summary_with_json(tmp_path,
     text = "\n".join(lines)
     summary = json.loads((out / "summary.json").read_text())  # the whole summary stays in the folder
     assert f"{summary['pos_err_mean_m']:.3f} m mean" in text and "against the ground truth" in text
-    assert "5 steps" in text and f"compiling {summary['compile_s']:.1f} s" in text
+    assert "5 steps" in text and f"compilation {summary['compile_s']:.1f} s" in text
     files = next(line for line in lines if line.lstrip().startswith("files"))
     assert str(out) in files and "summary.json" in files and "trajectory.tum" in files
 
@@ -120,7 +120,7 @@ def test_report_of_relations_and_gps_scores_names_how_many_were_scored(tmp_path)
     assert text.splitlines()[0] == "srupf-gm on intel, 30 particles, seed 1"
     assert "764 scans, 61 keyframes, 4 resamplings, 2 loop closures (1 undone)" in text
     assert "0.026 m mean, 0.021 m median, 0.194 m max (0 over 0.5 m), 0.31 deg mean; 71 of 2984 scored" in text
-    assert "12.2 s in all: compiling 9.5 s (1 programs compiled, 3 from the cache), filter loop 2.00 s" in text
+    assert "12.2 s in all: compilation 9.5 s (1 programs compiled, 3 loaded from the cache), filter loop 2.00 s" in text
     assert f"{tmp_path}: summary.json" in text
     gps = {"algorithm": "erb-upf", "dataset": "victoria-park", "steps": 7000, "landmarks": 90, "steps_per_s": 3500.0,
            "gps_mean_m": 2.345, "gps_rms_m": 2.9, "gps_max_m": 8.0, "n_used": 4000, "n_skipped": 466, **common}

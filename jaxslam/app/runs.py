@@ -516,7 +516,7 @@ def report(summary: dict[str, Any], out: str | Path) -> str:
     else:
         steps = f"{summary['steps']} steps, {summary['resamplings']} resamplings, {summary['landmarks']} landmarks"
         rate, unit = summary.get("steps_per_s"), "steps/s"
-    rows = [("steps", steps), *_score_rows(summary)]
+    rows = [("filter", steps), *_score_rows(summary)]
     if not summary.get("finite", True):
         rows.append(("warning", "the trajectory has non-finite poses"))
     repairs = {k: v for k, v in summary.get("repairs", {}).items() if v}
@@ -524,9 +524,9 @@ def report(summary: dict[str, Any], out: str | Path) -> str:
         rows.append(("repaired", ", ".join(f"{v} {k.removeprefix('num_').replace('_', ' ')}"
                                            for k, v in repairs.items())))
     counts = summary.get("compilations", {})
-    compiled = (f" ({counts['compiled']} programs compiled, {counts['cache_hits']} from the cache)"
+    compiled = (f" ({counts['compiled']} programs compiled, {counts['cache_hits']} loaded from the cache)"
                 if "compiled" in counts else "")
-    rows.append(("time", f"{_number(summary.get('total_s'), 1)} s in all: compiling "
+    rows.append(("time", f"{_number(summary.get('total_s'), 1)} s in all: compilation "
                  f"{_number(summary['compile_s'], 1)} s{compiled}, filter loop {_number(summary['wall_s'], 2)} s "
                  f"({_number(rate, 0)} {unit})"))
     present = {p.name for p in out.iterdir() if p.is_file()} if out.is_dir() else set()
