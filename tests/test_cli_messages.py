@@ -86,6 +86,7 @@ def test_loop_closure_help_states_the_searchs_configured_reach():
     assert f"over the next {float(params.closure_watch):g} m is undone" in text
 
 
+@pytest.mark.long
 def test_run_ends_with_a_short_report_and_prints_the_summary_with_json(tmp_path, capsys):
     common = ("--algorithm", "rb-upf", "--particles", "2", "--max-steps", "5", "--no-progress", "--no-plots")
     out = tmp_path / "short"
