@@ -72,13 +72,14 @@ nitpicky = True
 nitpick_ignore_regex = [
     (r"py:.*", r"(jax|jaxlib|numpy|np|jnp|chex|optax|scipy|matplotlib|rerun|rr|rosbags|tqdm)(\..*)?"),
     (r"py:.*", r"(Array|ArrayLike|PRNGKey|NDArray|DTypeLike|Path|PathLike|Callable|Any|Sequence|Mapping|Iterable|Iterator)"),
-    (r"py:.*", r"(typing|collections|pathlib|os|io|argparse|dataclasses|enum|types|numbers)\..*"),
+    (r"py:.*", r"(typing|collections|pathlib|os|io|argparse|dataclasses|enum|types|numbers|threading|atexit)(\..*)?"),
     (r"py:class", r"(optional|callable|array|arrays|array_like|ndarray|int|float|bool|str|dict|list|tuple)"),
 ]
 
 html_theme = "sphinx_book_theme"
 html_title = "jaxslam"
 html_static_path = ["_static"]
+html_css_files = ["custom.css"]
 html_theme_options = {
     "show_toc_level": 2,
     "navigation_with_keys": False,

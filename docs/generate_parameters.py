@@ -18,8 +18,8 @@ def _cell(text: str) -> str:
 
 
 def parameter_table() -> str:
-    """One row per parameter: name, unit, meaning, and its default under each algorithm
-    that uses it (an empty cell: the algorithm does not use it)."""
+    """One row per parameter: name, unit, its default and the algorithms that use it
+    (one default per algorithm where they differ), and its meaning."""
     try:
         from jaxslam.app.params import parameter_reference
     except ImportError as error:
@@ -29,14 +29,16 @@ def parameter_table() -> str:
     rows = list(parameter_reference())
     if not rows:
         raise RuntimeError("docs: parameter_reference() returned no parameters")
-    algorithms = sorted({a for row in rows for a in row.defaults})
-    lines = ["| name | unit | meaning | " + " | ".join(f"`{a}`" for a in algorithms) + " |",
-             "|---|---|---|" + "---|" * len(algorithms)]
+    lines = ["| name | unit | default | meaning |", "|---|---|---|---|"]
     for row in sorted(rows, key=lambda r: r.name):
-        if not row.unit or not row.meaning:
-            raise RuntimeError(f"docs: parameter {row.name!r} has no unit or no meaning")
-        defaults = [f"`{_cell(row.defaults[a])}`" if a in row.defaults else "" for a in algorithms]
-        lines.append(f"| `{row.name}` | {_cell(row.unit)} | {_cell(row.meaning)} | " + " | ".join(defaults) + " |")
+        if not row.unit or not row.meaning or not row.defaults:
+            raise RuntimeError(f"docs: parameter {row.name!r} has no unit, meaning or default")
+        values = set(row.defaults.values())
+        if len(values) == 1:
+            default = f"`{_cell(next(iter(values)))}` ({', '.join(sorted(row.defaults))})"
+        else:
+            default = "; ".join(f"`{_cell(v)}` ({a})" for a, v in sorted(row.defaults.items()))
+        lines.append(f"| `{row.name}` | {_cell(row.unit)} | {default} | {_cell(row.meaning)} |")
     return "\n".join(lines) + "\n"
 
 
