@@ -53,6 +53,18 @@ def test_every_readme_command_parses():
         assert args is not None, argv
 
 
+DOC_PAGES = sorted((ROOT / "docs").glob("*.md"))
+
+
+@pytest.mark.parametrize("path", DOC_PAGES, ids=lambda p: p.name)
+def test_every_documented_command_parses(path):
+    from jaxslam.app.cli import build_parser
+
+    parser = build_parser()
+    for argv in jaxslam_commands(path.read_text()):
+        assert parser.parse_args(argv) is not None, argv
+
+
 def test_a_bad_command_would_fail_the_check():
     from jaxslam.app.cli import build_parser
 
