@@ -98,6 +98,14 @@ def test_no_run_tags_in_benchmark_file_names():
     assert not [n for n in names if WORDS.search(n) or n.endswith(".patch")]
 
 
+def test_every_kept_result_is_cited():
+    """benchmarks/results/ keeps only what the documentation reads or names."""
+    cited = "".join(p.read_text() for p in [ROOT / "docs" / "generate_tables.py", *DOC_PAGES,
+                                             *sorted((ROOT / "notebooks").glob("*.ipynb"))])
+    kept = sorted(p.name for p in (ROOT / "benchmarks" / "results").iterdir())
+    assert kept and not [name for name in kept if name not in cited]
+
+
 @pytest.mark.long
 def test_the_demo_command_runs_verbatim(tmp_path):
     """The README's main job, as written (the package already installed), in a fresh folder."""
