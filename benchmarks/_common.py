@@ -33,7 +33,7 @@ def machine_info() -> dict[str, Any]:
         pass
     cpu = fields.get("model name", cpu)
     # Two "AMD EPYC" machines may be different CPUs whose vector instructions give XLA's
-    # code other rounding, and so chaotic runs other results (docs/results.md, suite v5.6).
+    # code other rounding, and so chaotic runs other results (see the documentation's Reproducibility page).
     flags = set(fields.get("flags", "").split())
     return {
         "cpu": cpu,

@@ -1,4 +1,4 @@
-"""Noise calibration by differentiating the particle filters (issue #16).
+"""Noise calibration by differentiating the particle filters.
 
 Parts (``--part``, repeatable; default all):
 

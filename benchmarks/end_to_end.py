@@ -26,10 +26,10 @@ also under ``nice -n 10``) runs on the same log with the same particle count, fo
 laser cases, right after the jaxslam runs of that case; ``gmapping_process_s`` is its
 whole process, ``gmapping_slam_s`` its own SLAM-loop time. ``speedup_process`` is
 GMapping's whole process over jaxslam's, ``speedup_loop`` GMapping's SLAM loop over
-jaxslam's filter loop. MRPT is not run here (see ``benchmarks/grid_vs_mrpt.py``).
+jaxslam's filter loop. MRPT is not run here.
 
 ``--old-tree DIR`` adds the mode ``old``: the same command run from another checkout
-(for example the code the issue measured, before the cache and the host-loop work),
+(for example an older revision of jaxslam),
 without the cache flags it may not know, right before the cold run of each case, so
 that the old and new numbers come from the same run.
 

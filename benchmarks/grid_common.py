@@ -21,7 +21,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 ROOT = Path(__file__).resolve().parents[1]
 
 # GMapping (OpenSLAM C++, single thread) on the full raw Intel log, 930 keyframes,
-# measured on this kind of machine (issue 4): seconds per run; peak 474 MB.
+# measured on a 2-core cloud VM: seconds per run; peak 474 MB.
 GMAPPING_CPP_INTEL_S = {10: 17.8, 30: 55.0, 50: 96.0, 100: 197.0}
 GMAPPING_CPP_PEAK_MB = 474.0
 
@@ -128,7 +128,7 @@ def saved_undo(run, end_only: bool = False) -> "np.ndarray":
     """``(S, 4)`` the undo rows a saved run's reported path took back
     (:func:`jaxslam.grid.undone_closures.reported_undo`): ``info_track_undo`` of scans 1..S-1
     (zeros with ``end_only``), then the end's judgment ``info_track_undo_end`` (zeros in
-    runs saved before session 50, which have none)."""
+    older saved runs, which have none)."""
     import numpy as np
 
     from jaxslam.grid.undone_closures import reported_undo

@@ -1,10 +1,10 @@
-"""Robustness suite for grid SLAM: one set of defaults on logs nobody tuned for (issue 10).
+"""Robustness suite for grid SLAM: one set of defaults on logs nobody tuned for.
 
 For each log, seed and filter (jaxslam ``srupf-gm`` and ``gmapping``, and GMapping
 C++ where built, :mod:`benchmarks.gmapping_cpp`) it reports the relations error
 (Kümmerle et al. 2009: mean, median, max, count over 0.5 m and over 1 m), the wall
-time and CPU time of the whole process, and two diagnostics of the failure modes of
-issue 10:
+time and CPU time of the whole process, and two diagnostics of a grid filter's failure
+modes:
 
 * **path jumps**: at each keyframe ``k`` of the chosen path, the correction against
   odometry ``c_k = (x_{k-1} (+) (o_{k-1}^-1 (+) o_k))^-1 (+) x_k``; we report its
@@ -49,8 +49,8 @@ Each jaxslam run happens in a fresh process (``--worker``) that calls only
 between runs of one log shape (``JAX_COMPILATION_CACHE_DIR``, default
 ``/tmp/jaxslam_robust_jax_cache``), so compile time drops after the first seed.
 
-Writes ``benchmarks/results/grid_robustness[_TAG].json`` (after every run, so a late
-failure loses nothing) and the maps (PNG, path in red) under
+Writes ``benchmarks/results/grid_robustness[_TAG].json`` (``--out OUT``: ``OUT.json``;
+after every run, so a late failure loses nothing) and the maps (PNG, path in red) under
 ``benchmarks/results/grid_robustness_maps[/TAG]/``.
 
     python benchmarks/grid_robustness.py --logs intel --perturbed fr101,edmonton \\
@@ -230,7 +230,7 @@ def score_as_tracked(entry: dict, data, times, kf_i, kf_p, odom) -> dict[str, An
     from grid_common import saved_undo
     from jaxslam.grid.undone_closures import put_back
 
-    undo = saved_undo(data)  # with the end's judgment (since session 50)
+    undo = saved_undo(data)  # with the end's judgment
     record: dict[str, Any] = {"closures_undone": int(np.sum(undo[:, 0] > 0)), "undone_at_end": bool(undo[-1, 0] > 0)}
     if not record["closures_undone"]:
         return record
@@ -336,6 +336,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--particles", type=int, default=30)
     parser.add_argument("--max-keyframes", type=int, default=None, help="short runs (jaxslam filters only)")
     parser.add_argument("--tag", default="", help="suffix of the JSON and maps folder")
+    parser.add_argument("--out", default="", help="name of the JSON under benchmarks/results/ "
+                        "(default grid_robustness[_TAG])")
     parser.add_argument("--timeout", type=float, default=1800.0)
     parser.add_argument("--no-maps", action="store_true")
     parser.add_argument("--variant", action="append", default=[], metavar="NAME=JSON",
@@ -362,7 +364,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"grid_robustness: GMapping C++ left out: {error}", file=sys.stderr)
             filters.remove("gmapping-cpp")
     suffix = f"_{args.tag}" if args.tag else ""
-    json_path = RESULTS / f"grid_robustness{suffix}.json"
+    json_path = RESULTS / f"{args.out or 'grid_robustness' + suffix}.json"
     maps_dir = RESULTS / "grid_robustness_maps" / (args.tag or "default")
     work = Path(args.work) / (args.tag or "default")
     work.mkdir(parents=True, exist_ok=True)

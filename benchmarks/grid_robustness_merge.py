@@ -6,7 +6,8 @@ given; a run of the same ``(log, filter, seed)`` in a later file replaces the ea
 one (so a part re-run after a change of defaults supersedes the old runs), and every
 run keeps the name of the file it came from. It prints the per-run and per-cell
 tables (:func:`grid_robustness.summarize`: the worst seed counts), writes
-``benchmarks/results/grid_robustness_merged[_NAME].json`` and a plot of the relations
+``benchmarks/results/grid_robustness_merged[_NAME].json`` (``--out OUT``:
+``OUT.json``) and a plot of the relations
 error of every seed, log by log, one marker per filter (logs without ground truth
 are listed, not plotted).
 
@@ -139,6 +140,8 @@ def main(argv: list[str] | None = None) -> int:
                              "those filters' runs of a file (e.g. GMapping C++ runs of an earlier part); "
                              "FILTER=NAME takes them under NAME (a variant that became the default)")
     parser.add_argument("--name", default="", help="suffix of the merged JSON and plot")
+    parser.add_argument("--out", default="", help="name of the merged JSON and plot under benchmarks/results/ "
+                        "(default grid_robustness_merged[_NAME])")
     parser.add_argument("--markdown", action="store_true",
                         help="also print a Markdown table: per log and filter the mean of the seeds' means "
                              "(worst seed), the worst relation, relations over 0.5 m and [seeds]")
@@ -153,9 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.markdown:
         print()
         print(markdown(summary))
-    suffix = f"_{args.name}" if args.name else ""
-    json_path = RESULTS / f"grid_robustness_merged{suffix}.json"
-    png_path = RESULTS / f"grid_robustness_merged{suffix}.png"
+    stem = args.out or "grid_robustness_merged" + (f"_{args.name}" if args.name else "")
+    json_path = RESULTS / f"{stem}.json"
+    png_path = RESULTS / f"{stem}.png"
     payload = {"machine": machine_info(), "sources": [str(p) for p in args.files], "replaced": replaced,
                "runs": rows, "summary": summary}
     json_path.write_text(json.dumps(payload, indent=1, default=float) + "\n")

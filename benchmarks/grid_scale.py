@@ -1,4 +1,4 @@
-"""Grid SLAM at scale: paged maps on Intel, FR079 and MIT Killian (issue 14).
+"""Grid SLAM at scale: paged maps on Intel, FR079 and MIT Killian.
 
 For each dataset (full log, defaults, one fresh process per run) it reports the time
 per keyframe, peak memory, the final pool size, tiles per particle, tiles shared,

@@ -18,8 +18,8 @@ different frames), then for every scan
 ``--points`` evenly spaced scans after the aligned stretch, its median and its
 maximum. A run that agrees with the reference about as well as the reference's own
 other seeds do (run them too) maps what the reference maps; a run metres away lost
-its way somewhere, or the reference did. On MIT CSAIL (session 71, docs "Suite
-v5.25"), GMapping C++'s five seeds lie within 0.8 m of each other, and SRUPF-GM's runs
+its way somewhere, or the reference did. On MIT CSAIL (the
+documentation's design notes, stale odometry), GMapping C++'s five seeds lie within 0.8 m of each other, and SRUPF-GM's runs
 lay 5-37 m from them before the stale-odometry repair and within 0.9 m after it.
 
     python benchmarks/path_agreement.py --reference W/mit-csail_gmapping-cpp_s2.npz \

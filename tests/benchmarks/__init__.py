@@ -10,16 +10,19 @@ BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
 def load_benchmark(name: str):
-    """Import ``benchmarks/NAME.py`` as module ``NAME``: registered in ``sys.modules``
-    (dataclasses look their module up there), with ``benchmarks/`` on ``sys.path`` for
-    the scripts' own imports (``_common``, ``grid_common``, ...)."""
+    """Import ``benchmarks/NAME.py`` (``NAME`` may be ``diagnostics/SCRIPT``) as module
+    ``SCRIPT``: registered in ``sys.modules`` (dataclasses look their module up there),
+    with ``benchmarks/`` on ``sys.path`` for the scripts' own imports (``_common``,
+    ``grid_common``, ...)."""
     if str(BENCHMARKS) not in sys.path:
         sys.path.insert(0, str(BENCHMARKS))
-    if name in sys.modules and getattr(sys.modules[name], "__file__", None) == str(BENCHMARKS / f"{name}.py"):
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    path = BENCHMARKS / f"{name}.py"
+    module_name = path.stem
+    if module_name in sys.modules and getattr(sys.modules[module_name], "__file__", None) == str(path):
+        return sys.modules[module_name]
+    spec = importlib.util.spec_from_file_location(module_name, path)
     module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
+    sys.modules[module_name] = module
     spec.loader.exec_module(module)
     return module
 

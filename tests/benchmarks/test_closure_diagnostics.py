@@ -1,4 +1,4 @@
-"""benchmarks/closure_diagnostics.py: closures of a saved run are found where the run
+"""benchmarks/diagnostics/closure_diagnostics.py: closures of a saved run are found where the run
 says, measured, and judged right or wrong by relations that span them."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from jaxslam.metrics.relations import Relations
 
 from . import load_benchmark, turning_path
 
-closure_diagnostics = load_benchmark("closure_diagnostics")
+closure_diagnostics = load_benchmark("diagnostics/closure_diagnostics")
 grid_common = load_benchmark("grid_common")
 
 

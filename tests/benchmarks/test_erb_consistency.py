@@ -1,4 +1,4 @@
-"""benchmarks/erb_consistency.py: the independent UKF reference with the true map and
+"""benchmarks/diagnostics/erb_consistency.py: the independent UKF reference with the true map and
 associations is consistent on the landmark simulator (the simulator's noise is the
 noise the filters assume, and the NEES wraps the heading), and it has the power to see
 a wrong noise level."""
@@ -13,7 +13,7 @@ from jaxslam.datasets import landmark_sim
 
 from . import load_benchmark
 
-erb_consistency = load_benchmark("erb_consistency")
+erb_consistency = load_benchmark("diagnostics/erb_consistency")
 
 
 def _sequences():

@@ -1,4 +1,4 @@
-"""benchmarks/heading_budget.py: a run's heading error split by trusted and refused scans,
+"""benchmarks/diagnostics/heading_budget.py: a run's heading error split by trusted and refused scans,
 and the odometry-bias predictor it compares."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 
 from . import load_benchmark, turning_path
 
-heading_budget = load_benchmark("heading_budget")
+heading_budget = load_benchmark("diagnostics/heading_budget")
 grid_common = load_benchmark("grid_common")
 
 

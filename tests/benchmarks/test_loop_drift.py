@@ -1,4 +1,4 @@
-"""benchmarks/loop_drift.py: the drift of scan b relative to scan a, against the reference."""
+"""benchmarks/diagnostics/loop_drift.py: the drift of scan b relative to scan a, against the reference."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 
 from . import load_benchmark
 
-loop_drift = load_benchmark("loop_drift")
+loop_drift = load_benchmark("diagnostics/loop_drift")
 
 
 def test_drift_of_a_rotated_and_shifted_run():

@@ -1,4 +1,4 @@
-"""benchmarks/profile_ops.py: exclusive time per operation from nested trace events."""
+"""benchmarks/diagnostics/profile_ops.py: exclusive time per operation from nested trace events."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 
 from . import load_benchmark
 
-profile_ops = load_benchmark("profile_ops")
+profile_ops = load_benchmark("diagnostics/profile_ops")
 
 
 def test_nested_events_count_once():

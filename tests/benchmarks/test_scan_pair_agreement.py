@@ -1,4 +1,4 @@
-"""benchmarks/scan_pair_agreement.py: the ICP recovers a known motion and reports the
+"""benchmarks/diagnostics/scan_pair_agreement.py: the ICP recovers a known motion and reports the
 points' disagreement."""
 
 import numpy as np
@@ -7,7 +7,7 @@ from jaxslam.datasets.laser_sim import raycast
 
 from . import load_benchmark
 
-spa = load_benchmark("scan_pair_agreement")
+spa = load_benchmark("diagnostics/scan_pair_agreement")
 
 
 def _scan(walls, pose, noise, rng):

@@ -1,0 +1,268 @@
+"""The documentation's result tables, generated from the JSON kept in ``benchmarks/results/``.
+
+``conf.py`` runs :func:`write_all` before every build, so that a table cannot drift from
+the data it shows: each table is a Markdown file under ``docs/_generated/`` that a page
+includes. ``python docs/generate_tables.py`` writes them by hand (and prints the README's
+headline table, which ``tests/test_docs.py`` checks against the README).
+
+Every function reads one or two result files and fails loudly (``KeyError``,
+``FileNotFoundError``) when a file or a field it needs is missing.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+GENERATED = Path(__file__).resolve().parent / "_generated"
+
+RAW_LOGS = ["intel", "fr079", "mit-killian"]
+PERTURBED_LOGS = ["intel-high", "csail-high", "seattle-high", "belgioioso-high", "edmonton-high", "fhw-high",
+                  "orebro-high", "acapulco-high", "fr101-high", "infinite-corridor-high", "fr-campus-high"]
+LOG_NAMES = {"intel": "Intel (raw)", "fr079": "FR079 (raw)", "mit-killian": "MIT Killian (raw)"}
+FILTER_NAMES = {"srupf-gm": "`srupf-gm`", "gmapping": "`gmapping`", "gmapping-cpp": "GMapping C++"}
+SPEED_CASES = {"intel-srupf-30": "Intel, `srupf-gm`, 30", "intel-gmapping-30": "Intel, `gmapping`, 30",
+               "killian-srupf-30": "MIT Killian, `srupf-gm`, 30", "clinic-srupf-30": "fr-clinic, `srupf-gm`, 30",
+               "vp-erb-100": "Victoria Park, `erb-upf`, 100"}
+
+
+def load(name: str) -> dict:
+    """The JSON of ``benchmarks/results/NAME``."""
+    return json.loads((RESULTS / name).read_text())
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _cells(summary: list[dict]) -> dict[tuple[str, str], dict]:
+    return {(s["log"], s["filter"]): s for s in summary}
+
+
+def _mean_worst(cell: dict | None, seeds: bool = True) -> str:
+    if cell is None:
+        return ""
+    text = f"{cell['mean_of_means_m']:.3f} ({cell['worst_mean_m']:.3f})"
+    return text + (f" [{cell['seeds']}]" if seeds else "")
+
+
+def machine_line(data: dict) -> str:
+    """One sentence on the machine a result file was measured on."""
+    m = data["machine"]
+    return f"Measured on a {m['cores']}-core {m['cpu']} (family/model {m.get('cpu_family_model', '?')}), jax {m['jax']}."
+
+
+def robustness_table() -> str:
+    """The robustness suite: every filter with its defaults, relations error mean of the
+    seeds' means (worst seed) [seeds], m."""
+    data = load("robustness_suite.json")
+    cells = _cells(data["summary"])
+    filters = ["srupf-gm", "gmapping", "gmapping-cpp"]
+    rows = []
+    for log in RAW_LOGS + PERTURBED_LOGS:
+        rows.append([LOG_NAMES.get(log, log)] + [_mean_worst(cells.get((log, f))) for f in filters])
+    return _table(["log"] + [FILTER_NAMES[f] for f in filters], rows)
+
+
+def robustness_counts() -> dict[str, int]:
+    """How many of the suite's scored logs ``srupf-gm``'s mean and worst seed are at or
+    under GMapping C++'s on."""
+    cells = _cells(load("robustness_suite.json")["summary"])
+    logs = RAW_LOGS + PERTURBED_LOGS
+    ours = [cells[(log, "srupf-gm")] for log in logs]
+    cpp = [cells[(log, "gmapping-cpp")] for log in logs]
+    return {"logs": len(logs),
+            "mean_at_or_under": sum(a["mean_of_means_m"] <= b["mean_of_means_m"] for a, b in zip(ours, cpp)),
+            "worst_at_or_under": sum(a["worst_mean_m"] <= b["worst_mean_m"] for a, b in zip(ours, cpp))}
+
+
+def _speed_rows() -> dict[str, dict]:
+    """Each case's row from the newest file that ran it (``end_to_end.json`` first)."""
+    rows: dict[str, dict] = {}
+    for name in ("end_to_end.json", "end_to_end_intel.json", "end_to_end_killian_vp.json"):
+        for row in load(name)["rows"]:
+            rows.setdefault(row["case"], row)
+    return rows
+
+
+def speed_table() -> str:
+    """Whole ``jaxslam run`` processes, cold and warm compilation cache, GMapping C++ in the
+    same run."""
+    rows = []
+    for case, row in _speed_rows().items():
+        cpp = row.get("gmapping_process_s")
+        for mode in ("cold", "warm"):
+            ratio = row.get(f"{mode}_speedup_process")
+            rows.append([SPEED_CASES[case] if mode == "cold" else "", mode,
+                         f"{row[f'{mode}_process_s']:.1f} s", f"{row[f'{mode}_compile_s']:.2f} s",
+                         f"{row[f'{mode}_wall_s']:.1f} s",
+                         f"{cpp:.1f} s" if cpp and mode == "cold" else "",
+                         f"{ratio:.2f}x" if ratio else ""])
+    return _table(["case", "cache", "whole process", "compile", "filter loop", "GMapping C++ process",
+                   "GMapping C++ / jaxslam"], rows)
+
+
+def landmark_table() -> str:
+    """Victoria Park, all scans: GPS error after rigid alignment over seeds."""
+    data = load("erb_particles.json")
+    rows = []
+    for run in sorted(data["runs"], key=lambda r: (r["particles"], r["algorithm"])):
+        lo, hi = run["gps_mean_m_ci"]
+        rows.append([str(run["particles"]), f"`{run['algorithm']}`", str(len(run["seeds"])),
+                     f"{run['gps_mean_m']:.2f} ± {run['gps_mean_m_std']:.2f} m", f"[{lo:.2f}, {hi:.2f}]",
+                     f"{run['gps_mean_m_median']:.2f} m", f"{max(run['gps_mean_m_per_seed']):.2f} m"])
+    return _table(["particles", "filter", "seeds", "GPS error, mean ± sd over seeds", "95 % interval",
+                   "median", "worst seed"], rows)
+
+
+def scale_table() -> str:
+    """Paged maps at scale: whole-process peak memory and time per keyframe."""
+    rows = []
+    for run in load("grid_scale.json")["runs"]:
+        rows.append([run["dataset"], str(run["particles"]), str(run["scans"]), str(run["keyframes"]),
+                     f"{run['peak_rss_mb'] / 1000:.2f} GB", f"{1000 * run['s_per_keyframe']:.1f} ms",
+                     str(run["maps"]["tiles_used"]), f"{run['trans_err_mean_m']:.3f} m"])
+    big = load("grid_scale_killian_1000.json")
+    s = big["summary"]
+    rows.append([s["dataset"], str(s["particles"]), str(s["scans"]), str(s["keyframes"]),
+                 f"{big['peak_rss_gb']:.2f} GB", f"{1000 * s['wall_s'] / s['keyframes']:.0f} ms",
+                 str(s["maps"]["tiles_used"]), f"{s['trans_err_mean_m']:.3f} m"])
+    return _table(["log", "particles", "scans", "keyframes", "peak memory (process)", "per keyframe",
+                   "tiles used", "relations error"], rows)
+
+
+FEATURE_VARIANTS = {"base": "the defaults", "no_closure": "no loop-closure search (`closure` False)",
+                    "no_recover": "no recovery (`recover_radius` 0)",
+                    "coarse0": "no coarse stage (`coarse_iterations` 0)",
+                    "kf1m": "GMapping's 1 m keyframes (`linear_update` 1)",
+                    "no_tracking": "no per-scan tracking (`tracking` False)",
+                    "all_off": "all five off"}
+
+
+def feature_cost_table() -> str:
+    """Raw Intel, seed 0, one core: each part of ``srupf-gm`` switched off in turn."""
+    runs = {r["variant"]: r for r in load("feature_cost_intel.json")["runs"]}
+    rows = []
+    for key, label in FEATURE_VARIANTS.items():
+        r = runs[key]
+        rows.append([label, f"{r['filter_s']:.1f} s", f"{r['compile_s']:.1f} s", str(r["keyframes"]),
+                     f"{r['mean_m']:.4f} m", str(r["over_0.5m"])])
+    return _table(["variant", "filter loop", "cold compile", "keyframes", "relations error (mean)",
+                   "relations over 0.5 m"], rows)
+
+
+def comparison_table(with_name: str, without_name: str, with_label: str, without_label: str) -> str:
+    """``srupf-gm`` with and without one part, next to GMapping C++, on the logs both ran."""
+    with_cells = _cells(load(with_name)["summary"])
+    without_cells = _cells(load(without_name)["summary"])
+    cpp = _cells(load("robustness_suite.json")["summary"])
+    rows = []
+    for log in RAW_LOGS + PERTURBED_LOGS:
+        a, b = with_cells.get((log, "srupf-gm")), without_cells.get((log, "srupf-gm"))
+        if a is None or b is None:
+            continue
+        rows.append([LOG_NAMES.get(log, log), _mean_worst(a), _mean_worst(b), _mean_worst(cpp.get((log, "gmapping-cpp")))])
+    return _table(["log", with_label, without_label, "GMapping C++"], rows)
+
+
+def closure_search_cost_table() -> str:
+    """The search's candidate scores, block sums against per-beam gathers, one core."""
+    rows = [[str(r["beams"]), f"{r['candidates']:,}", f"{r['gathers_ms']:.1f} ms", f"{r['blocks_ms']:.1f} ms",
+             f"{r['speed_up']:.1f}x", r["identical"]] for r in load("closure_search_cost.json")["rows"]]
+    return _table(["beams scored", "candidates", "gathers", "block sums", "speed-up", "identical scores"], rows)
+
+
+def compile_cost_table() -> str:
+    """XLA's compilation of SRUPF-GM's chunk runner, fresh processes, one core, cache off."""
+    runs = [r for r in load("compile_cost.json")["runs"] if r["tree"] == "new"]
+    rows = [[str(r["pair"]), f"{r['xla_s']:.2f} s", f"{r['trace_s']:.2f} s", f"{r['lower_s']:.2f} s",
+             f"{r['process_s']:.1f} s"] for r in runs]
+    return _table(["process", "XLA compilation", "tracing", "lowering to MLIR", "whole process"], rows)
+
+
+def path_agreement_table() -> str:
+    """MIT CSAIL: each run's path against GMapping C++'s seed 2, median (largest) distance, m."""
+    data = load("path_agreement_csail.json")
+    groups: dict[str, dict[int, str]] = {}
+    for r in data["rows"]:
+        cell = "reference" if r["median_m"] == 0.0 else f"{r['median_m']:.2f} ({r['max_m']:.1f})"
+        groups.setdefault(r["group"], {})[r["seed"]] = cell
+    seeds = sorted({r["seed"] for r in data["rows"]})
+    rows = [[group] + [cells.get(s, "") for s in seeds] for group, cells in groups.items()]
+    return _table(["runs on MIT CSAIL"] + [f"seed {s}" for s in seeds], rows)
+
+
+def headline_table() -> str:
+    """The README's table: accuracy over the suite, speed in one run, memory on MIT Killian."""
+    cells = _cells(load("robustness_suite.json")["summary"])
+    counts = robustness_counts()
+    speed = _speed_rows()
+    scale = {r["dataset"]: r for r in load("grid_scale.json")["runs"]}
+    big = load("grid_scale_killian_1000.json")
+    suite = "[robustness suite](benchmarks/grid_robustness.py)"
+    e2e = "[end to end](benchmarks/end_to_end.py)"
+    rows = []
+    for log in RAW_LOGS:
+        a, b = cells[(log, "srupf-gm")], cells[(log, "gmapping-cpp")]
+        rows.append([f"{LOG_NAMES[log]}: relations error, mean (worst seed)", _mean_worst(a, False) + " m",
+                     _mean_worst(b, False) + " m", suite])
+    pert_ours = [cells[(log, "srupf-gm")] for log in PERTURBED_LOGS]
+    pert_cpp = [cells[(log, "gmapping-cpp")] for log in PERTURBED_LOGS]
+    rows.append([f"{len(PERTURBED_LOGS)} perturbed logs: median of the logs' means (worst seed of any log)",
+                 f"{statistics.median(c['mean_of_means_m'] for c in pert_ours):.3f} "
+                 f"({max(c['worst_mean_m'] for c in pert_ours):.3f}) m",
+                 f"{statistics.median(c['mean_of_means_m'] for c in pert_cpp):.3f} "
+                 f"({max(c['worst_mean_m'] for c in pert_cpp):.3f}) m", suite])
+    rows.append([f"logs where the mean / worst seed is at or under GMapping C++'s",
+                 f"{counts['mean_at_or_under']} / {counts['worst_at_or_under']} of {counts['logs']}", "", suite])
+    for case in ("intel-srupf-30", "killian-srupf-30"):
+        r = speed[case]
+        rows.append([f"{SPEED_CASES[case]}: whole process, cold / warm cache",
+                     f"{r['cold_process_s']:.1f} / {r['warm_process_s']:.1f} s", f"{r['gmapping_process_s']:.1f} s",
+                     e2e])
+    k = scale["mit-killian"]
+    rows.append([f"MIT Killian ({k['scans']} scans), peak memory of the process, 30 / 1000 particles",
+                 f"{k['peak_rss_mb'] / 1000:.2f} / {big['peak_rss_gb']:.2f} GB", "",
+                 "[scale](benchmarks/grid_scale.py)"])
+    return _table(["", "jaxslam `srupf-gm`", "GMapping C++", "reproduce"], rows)
+
+
+TABLES = {
+    "robustness": robustness_table, "speed": speed_table, "landmark": landmark_table, "scale": scale_table,
+    "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
+    "compile_cost": compile_cost_table, "path_agreement": path_agreement_table,
+    "coarse_stage": lambda: comparison_table("robustness_coarse_stage.json", "robustness_no_coarse_stage.json",
+                                             "with the coarse stage", "without"),
+    "recovery": lambda: comparison_table("robustness_recovery.json", "robustness_no_recovery.json",
+                                         "with the recovery and wider proposals", "without"),
+}
+MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
+            "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
+            "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
+            "path_agreement": "path_agreement_csail.json", "coarse_stage": "robustness_coarse_stage.json",
+            "recovery": "robustness_recovery.json"}
+
+
+def write_all(folder: Path = GENERATED) -> list[Path]:
+    """Write every table as ``folder/NAME.md`` (the table, then the machine it was measured on)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, make in TABLES.items():
+        path = folder / f"{name}.md"
+        text = make() + "\n" + machine_line(load(MACHINES[name])) + "\n"
+        if not path.exists() or path.read_text() != text:
+            path.write_text(text)
+        written.append(path)
+    return written
+
+
+if __name__ == "__main__":
+    for p in write_all():
+        print("wrote", p.relative_to(ROOT))
+    print()
+    print(headline_table())

@@ -1,0 +1,116 @@
+"""README.md and docs/: the set-up commands are the ones CI runs, every `jaxslam`
+command in the README parses, the headline table is the one generated from
+benchmarks/results/, and no page speaks of work sessions, suite versions or run tags."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+SETUP = ["pip install . && jaxslam run --out runs/demo", 'pip install ".[test]" && python -m pytest']
+
+
+def bash_blocks(text: str) -> list[str]:
+    """The bodies of the fenced ```bash blocks, in order."""
+    return [m.group(1).strip() for m in re.finditer(r"^```bash\n(.*?)^```", text, re.S | re.M)]
+
+
+def jaxslam_commands(text: str) -> list[list[str]]:
+    """Every `jaxslam ...` line of the bash blocks (after a leading `pip install ... &&`)."""
+    commands = []
+    for block in bash_blocks(text):
+        for line in block.splitlines():
+            line = line.split("#", 1)[0].strip()
+            for part in line.split("&&"):
+                words = shlex.split(part)
+                if words and words[0] == "jaxslam":
+                    commands.append(words[1:])
+    return commands
+
+
+def test_the_first_two_bash_blocks_are_the_set_up_commands_ci_runs():
+    assert bash_blocks(README)[:2] == SETUP
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert SETUP[1] in ci
+    assert 'pip install ".[docs]"' in ci and "sphinx-build -W --keep-going -n -b html docs docs/_build/html" in ci
+
+
+def test_every_readme_command_parses():
+    from jaxslam.app.cli import build_parser
+
+    parser = build_parser()
+    commands = jaxslam_commands(README)
+    assert len(commands) >= 6
+    for argv in commands:
+        args = parser.parse_args(argv)  # an unknown option or a bad value exits with status 2
+        assert args is not None, argv
+
+
+DOC_PAGES = sorted((ROOT / "docs").glob("*.md"))
+
+
+@pytest.mark.parametrize("path", DOC_PAGES, ids=lambda p: p.name)
+def test_every_documented_command_parses(path):
+    from jaxslam.app.cli import build_parser
+
+    parser = build_parser()
+    for argv in jaxslam_commands(path.read_text()):
+        assert parser.parse_args(argv) is not None, argv
+
+
+def test_a_bad_command_would_fail_the_check():
+    from jaxslam.app.cli import build_parser
+
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["run", "--no-such-option"])
+
+
+def test_the_headline_table_is_the_generated_one():
+    sys.path.insert(0, str(ROOT / "docs"))
+    import generate_tables
+
+    assert generate_tables.headline_table() in README
+
+
+def test_readme_is_short():
+    assert len(README.splitlines()) <= 210
+
+
+WORDS = re.compile(r"\bsession|\bsuite v\d|\bv5\.\d|\bissue\s*#?\d|\bs\d\d_[a-z]|_s\d\d\b", re.I)
+
+
+@pytest.mark.parametrize("path", [ROOT / "README.md", ROOT / "benchmarks" / "README.md",
+                                  *sorted((ROOT / "docs").glob("*.*"))], ids=lambda p: p.name)
+def test_no_diary_words(path):
+    hits = [line for line in path.read_text().splitlines() if WORDS.search(line)]
+    assert not hits, f"{path.name}: {hits[:3]}"
+
+
+def test_no_run_tags_in_benchmark_file_names():
+    names = [p.name for p in (ROOT / "benchmarks").rglob("*") if "__pycache__" not in p.parts]
+    assert not [n for n in names if WORDS.search(n) or n.endswith(".patch")]
+
+
+def test_every_kept_result_is_cited():
+    """benchmarks/results/ keeps only what the documentation reads or names."""
+    cited = "".join(p.read_text() for p in [ROOT / "docs" / "generate_tables.py", *DOC_PAGES,
+                                             *sorted((ROOT / "notebooks").glob("*.ipynb"))])
+    kept = sorted(p.name for p in (ROOT / "benchmarks" / "results").iterdir())
+    assert kept and not [name for name in kept if name not in cited]
+
+
+@pytest.mark.long
+def test_the_demo_command_runs_verbatim(tmp_path):
+    """The README's main job, as written (the package already installed), in a fresh folder."""
+    argv = shlex.split(SETUP[0].split("&&", 1)[1])
+    result = subprocess.run([sys.executable, "-m", "jaxslam.app.cli", *argv[1:], "--no-plots"], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert (tmp_path / "runs" / "demo" / "summary.json").exists()
