@@ -240,6 +240,9 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
             run_args = json.loads(saved.read_text())
         except json.JSONDecodeError as err:
             raise DataFormatError(saved, err.lineno, f"not valid JSON: {err.msg}") from None
+        except (OSError, UnicodeDecodeError) as err:
+            raise DataFormatError(saved, None, f"cannot read: {err}") from None
+        run_args = saved_arguments(saved, run_args)
         if args.threads is not None:
             run_args["threads"] = args.threads
         return runs.run(out=args.resume, progress=not args.no_progress, plots=not args.no_plots,
@@ -261,6 +264,26 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
         rerun=args.rerun, rerun_spawn=args.rerun_spawn,
         max_range=args.max_range, threads=args.threads, loop_closure=args.loop_closure,
     )
+
+
+def saved_arguments(path: Path, saved) -> dict[str, Any]:
+    """The arguments of :func:`jaxslam.app.runs.run` recorded in a ``run.json``
+    (its ``status`` and ``reason`` left out), or a ``DataFormatError`` naming a key
+    that is not one of them."""
+    import inspect
+
+    from jaxslam.app import runs
+    from jaxslam.datasets.paths import DataFormatError
+
+    if not isinstance(saved, dict):
+        raise DataFormatError(path, None, "expected a JSON object of the run's arguments")
+    own = {"out", "progress", "plots", "checkpoint_every", "resume"}  # given by the command line
+    known = set(inspect.signature(runs.run).parameters) - own
+    unknown = sorted(set(saved) - known - {"status", "reason"})
+    if unknown:
+        raise DataFormatError(path, None, f"unknown key(s) {', '.join(map(repr, unknown))}: not written by "
+                                          "this version of `jaxslam run`")
+    return {k: v for k, v in saved.items() if k in known}
 
 
 def cmd_evaluate(args) -> int:
@@ -304,7 +327,7 @@ def main(argv: list[str] | None = None) -> int:
     except (CliError, RunError, DatasetNotFoundError, DataFormatError) as err:
         parser.exit(2, f"jaxslam {args.command}: error: {err}\n")
     except KeyboardInterrupt:
-        parser.exit(130, "interrupted\n")
+        parser.exit(130, f"jaxslam {args.command}: interrupted\n")
 
 
 def console_main() -> None:
@@ -317,8 +340,12 @@ def console_main() -> None:
     streams are flushed and the process ends with :func:`os._exit`. With a non-daemon
     thread still alive, or without CPython's ``atexit._run_exitfuncs``, it exits the
     usual way. Errors (``SystemExit`` from the parser, tracebacks) take the usual way.
+    Ctrl-C exits with status 130 and one line (:mod:`jaxslam.app.interrupts`).
     """
-    code = main()
+    from jaxslam.app.interrupts import exit_on_interrupt
+
+    with exit_on_interrupt(next((word for word in sys.argv[1:] if word in COMMANDS), None)):
+        code = main()
     run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
     if run_exit_handlers is None or others:

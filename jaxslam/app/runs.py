@@ -22,7 +22,7 @@ import numpy as np
 from jaxslam.runtime.compiler import cpus_allowed, set_threads
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
-from jaxslam.app.outputs import prefetch_plotting, write_json, write_with_figures
+from jaxslam.app.outputs import marked_run, prefetch_plotting, prepare_folder, write_summary, write_with_figures
 
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
@@ -350,8 +350,7 @@ def run(
     except ValueError as err:
         raise RunError(str(err)) from None
     dtype = jnp.float64 if float64 else jnp.float32
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_folder(Path(out))
     dataset_name = info.name if info is not None else str(Path(path).resolve())
     run_args = {"dataset": dataset_name, "algorithm": algorithm, "particles": particles, "seed": seed,
                 "max_steps": max_steps, "overrides": overrides, "float64": float64, "chunk": chunk}
@@ -393,13 +392,23 @@ def run(
                                 resume=resume)
         if resume and not checkpoint.path.exists():
             raise RunError(f"--resume: no checkpoint in {str(out)!r} (run with --checkpoint-every N first)")
-    if not resume:
-        write_json(out / "run.json", run_args)
+    with marked_run(out, run_args) as stage:
+        return _run_and_write(out, stage, run_args, info, path, kind, algorithm, particles, seed, max_steps,
+                              overrides, progress, chunk, dtype, float64, plots, checkpoint, keyframes, bag,
+                              rerun, rerun_spawn, dataset_name, max_range, loop_closure, resume, xla_threads)
+
+
+def _run_and_write(out, stage, run_args, info, path, kind, algorithm, particles, seed, max_steps, overrides,
+                   progress, chunk, dtype, float64, plots, checkpoint, keyframes, bag, rerun, rerun_spawn,
+                   dataset_name, max_range, loop_closure, resume, xla_threads):
+    """The run itself, its files written to ``stage`` (see :func:`marked_run`)."""
+    import jax
+
     from jaxslam.runtime.cache import CompileCounter
 
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
-    args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype)
+    args = (info, algorithm, particles, seed, stage, max_steps, overrides, progress, chunk, dtype)
     if kind == "laser":
         args = (info, path) + args[1:]
     extra = {"keyframes": keyframes} if keyframes else {}
@@ -438,11 +447,10 @@ def run(
     # load_s, output_s: reading the data; writing the files and drawing the figures
     # (seconds; the two overlap)
     writing = time.perf_counter()
-    write_with_figures(out, write_files, arrays if plots else None)
+    write_with_figures(stage, write_files, arrays if plots else None)
     summary["output_s"] = time.perf_counter() - writing
     summary["total_s"] = time.time() - started
-    write_json(out / "summary.json", summary)
-    return summary
+    return write_summary(stage / "summary.json", summary)
 
 
 def evaluate(trajectory: Path, relations: str | None = None, gps: str | None = None) -> dict[str, Any]:

@@ -1,0 +1,57 @@
+"""Ctrl-C while ``jaxslam run`` compiles: exit status 130, one line, the folder marked.
+
+Each try runs the command line in a subprocess on the built-in landmark simulator
+with the compilation cache off (so that compilation takes seconds) and sends SIGINT
+once ``compiling`` is printed, after a random delay of up to a second."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+
+def interrupt_while_compiling(out: Path, delay: float) -> tuple[int, str]:
+    """Start a run, SIGINT it ``delay`` s after ``compiling`` appears; (status, stderr)."""
+    command = [sys.executable, "-m", "jaxslam.app.cli", "run", "--algorithm", "erb-upf", "--particles", "5",
+               "--max-steps", "200", "--no-cache", "--no-plots", "--out", str(out)]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                               env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    seen = []
+    for line in process.stderr:
+        seen.append(line)
+        if "compiling" in line:
+            break
+    time.sleep(delay)
+    process.send_signal(signal.SIGINT)
+    _, rest = process.communicate(timeout=120)
+    return process.returncode, "".join(seen) + rest
+
+
+def check_interrupted(out: Path, status: int, stderr: str) -> None:
+    assert status == 130, f"exit status {status}, stderr:\n{stderr}"
+    assert "Traceback" not in stderr and "Fatal Python error" not in stderr, stderr
+    assert [line for line in stderr.splitlines() if "interrupted" in line] == ["jaxslam run: interrupted"], stderr
+    assert json.loads((out / "run.json").read_text())["status"] == "interrupted"
+    assert not (out / "summary.json").exists()
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.6])
+def test_interrupt_while_compiling_exits_130(tmp_path, delay):
+    out = tmp_path / "run"
+    check_interrupted(out, *interrupt_while_compiling(out, delay))
+
+
+@pytest.mark.long
+def test_interrupt_while_compiling_many_times(tmp_path):
+    rng = random.Random(0)
+    for attempt in range(20):
+        out = tmp_path / f"run{attempt}"
+        check_interrupted(out, *interrupt_while_compiling(out, rng.uniform(0.0, 1.5)))
