@@ -108,6 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--max-range", type=float, default=None, metavar="M",
                      help="CARMEN logs: range limit in m; readings at or beyond it are 'no return' (default: the "
                           "logged limit, lowered to a detected no-return sentinel pile, see summary.json no_return)")
+    run.add_argument("--mixed-geometry", choices=("raise", "pad"), default=None,
+                     help="CARMEN logs whose beam geometry changes mid-log: refuse them (raise, the default) or "
+                          "pad their scans to a common length (pad)")
+    run.add_argument("--max-odometry-step", type=float, default=None, metavar="M",
+                     help="laser logs: refuse a log whose odometry moves more than this between two scans, a "
+                          "fault of the odometry rather than motion (default 10; jaxslam.datasets.checks)")
     run.add_argument("--loop-closure", action=argparse.BooleanOptionalAction, default=None,
                      help="laser data: where the tracking's match fails in a mapped place, search up to 4 m and "
                           "8 deg around it and take a clearly better pose (closes large loops such as MIT "
@@ -225,11 +231,10 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
     from jaxslam.datasets.registry import DEFAULT_ALGORITHM
 
     if args.list_params:
+        from jaxslam.app.params import parameter_table
+
         algorithm = args.algorithm or DEFAULT_ALGORITHM[runs.resolve_dataset(args.dataset, None)[2]]
-        chosen = ("usable_range", "score_range")  # grid filters: from the log (jaxslam.grid.range_rule)
-        for name, default in runs.param_fields(algorithm).items():
-            note = "  (indoor logs; chosen from the log's readings unless set: summary.json range_rule)"
-            print(f"{name:24s} {default!r}" + (note if name in chosen else ""))
+        print(parameter_table(algorithm))
         return None
     if args.resume is not None:
         saved = args.resume / "run.json"
@@ -250,10 +255,17 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
     if args.out is None:
         raise runs.RunError("--out is required (the folder the outputs go to)")
     overrides = dict(args.overrides or [])
+    from_file = {}
     if getattr(args, "params", None) is not None:
         from jaxslam.app.calibrate import load_params_file
 
-        overrides = {**load_params_file(args.params), **overrides}
+        from_file = load_params_file(args.params)
+    # each value checked where it was given, before anything is loaded or compiled
+    algorithm = args.algorithm or DEFAULT_ALGORITHM[runs.resolve_dataset(args.dataset, None)[2]]
+    if runs.ALGORITHMS[algorithm] == runs.resolve_dataset(args.dataset, algorithm)[2]:
+        runs.check_overrides(algorithm, from_file, origin=f"--params {str(args.params)!r}:")
+        runs.check_overrides(algorithm, overrides, origin="--set")
+    overrides = {**from_file, **overrides}
     return runs.run(
         out=args.out, dataset=args.dataset, algorithm=args.algorithm, particles=args.particles, seed=args.seed,
         max_steps=args.max_steps, overrides=overrides, progress=not args.no_progress,
@@ -263,6 +275,7 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
              "laser_offset": args.laser_mount},
         rerun=args.rerun, rerun_spawn=args.rerun_spawn,
         max_range=args.max_range, threads=args.threads, loop_closure=args.loop_closure,
+        max_odometry_step=args.max_odometry_step, mixed_geometry=args.mixed_geometry,
     )
 
 
