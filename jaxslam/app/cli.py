@@ -338,7 +338,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return COMMANDS[args.command](args)
     except (CliError, RunError, DatasetNotFoundError, DataFormatError) as err:
-        parser.exit(2, f"jaxslam {args.command}: error: {err}\n")
+        parser.exit(2, f"jaxslam {args.command}: error: {' '.join(str(err).split())}\n")  # one line
     except KeyboardInterrupt:
         parser.exit(130, f"jaxslam {args.command}: interrupted\n")
 

@@ -104,7 +104,7 @@ def check_value(algorithm: str, name: str, value, origin: str = "--set") -> str:
         close = difflib.get_close_matches(name, list(table), n=1)
         raise ValueError(f"{origin} {name}={value:g}: {algorithm} has no parameter {name!r}"
                          f"{_unused_hint(algorithm, name)}{f'; did you mean {close[0]!r}?' if close else ''} "
-                         f"(`jaxslam run --list-params --algorithm {algorithm}` lists them)")
+                         f"Its parameters: {', '.join(table)} (`jaxslam run --list-params --algorithm {algorithm}`)")
     problem = spec.problem(float(value))
     if problem is not None:
         raise ValueError(f"{origin} {name}={value:g}: {name} ({spec.unit}, {spec.meaning}) {problem}")

@@ -157,7 +157,9 @@ def _load_log(info, path, seed, bag, max_range, mixed_geometry=None):
         except (DataFormatError, FileNotFoundError):
             raise
         except Exception as err:  # noqa: BLE001 - any failure of the bag reader on damaged bytes
-            raise DataFormatError(path, None, f"not a readable ROS bag ({type(err).__name__}: {err})") from None
+            text = " ".join(str(err).split())
+            detail = f"{type(err).__name__}: {text}" if text else type(err).__name__
+            raise DataFormatError(path, None, f"cannot read the bag ({detail})") from None
     options = {"max_range": max_range} if max_range is not None else {}
     if mixed_geometry is not None:
         options["mixed_geometry"] = mixed_geometry
@@ -168,6 +170,22 @@ def _load_log(info, path, seed, bag, max_range, mixed_geometry=None):
     if info is not None:
         path, options = info.paths()[0], {**info.options, **options}
     return load_carmen_cached(path, _log_cache_folder(), **options)
+
+
+def load_checked_log(info, path, seed=0, bag=None, max_range=None, mixed_geometry=None, max_odometry_step=None,
+                     temporal=False):
+    """``(log, log_cache, log_checks)``: the laser log of a registry entry ``info`` or
+    a ``path`` (CARMEN log or ROS bag), how the log cache served it, and what
+    :func:`jaxslam.datasets.checks.check_laser_log` found (a log that cannot give a
+    true map raises ``DataFormatError`` naming the file and the scan). A warning line
+    says when the scan stamps do not advance."""
+    log, log_cache = _load_log(info, path, seed, bag, max_range, mixed_geometry)
+    log_checks = check_laser_log(log, MAX_ODOMETRY_STEP if max_odometry_step is None else max_odometry_step,
+                                 temporal=temporal)
+    if not log_checks["stamps_advance"]:
+        print(f"jaxslam run: warning: {log.path}: its scan stamps do not advance ({log_checks['scans']} scans over "
+              f"{log_checks['stamp_span_s']:g} s); trajectory.tum carries them as logged", file=sys.stderr)
+    return log, log_cache, log_checks
 
 
 def _log_cache_folder() -> str | None:
@@ -192,13 +210,9 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
 
     name = info.name if info is not None else str(path)
     loading = time.perf_counter()
-    log, log_cache = _load_log(info, path, seed, bag, max_range, mixed_geometry)
     temporal = (keyframes or {}).get("temporal", overrides.get("temporal_update", -1.0))
-    log_checks = check_laser_log(log, MAX_ODOMETRY_STEP if max_odometry_step is None else max_odometry_step,
-                                 temporal=temporal is not None and float(temporal) > 0)
-    if not log_checks["stamps_advance"]:
-        print(f"jaxslam run: warning: {log.path}: its scan stamps do not advance ({log_checks['scans']} scans over "
-              f"{log_checks['stamp_span_s']:g} s); trajectory.tum carries them as logged", file=sys.stderr)
+    log, log_cache, log_checks = load_checked_log(info, path, seed, bag, max_range, mixed_geometry,
+                                                  max_odometry_step, temporal is not None and float(temporal) > 0)
     load_s = time.perf_counter() - loading
     if prefetch:
         prefetch_plotting()
