@@ -15,8 +15,6 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from jaxslam.datasets.registry import ALGORITHMS
-from jaxslam.app.outputs import json_default
 
 EPILOG = """examples:
   jaxslam run --out runs/demo                      simulated landmark world, ERB, 100 particles
@@ -67,6 +65,8 @@ def _override(text: str) -> tuple[str, float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from jaxslam.datasets.registry import ALGORITHMS
+
     parser = argparse.ArgumentParser(
         prog="jaxslam",
         description="Batched JAX particle filters for SLAM (RB/ERB unscented FastSLAM, SRUPF-GM, GMapping-style).",
@@ -218,6 +218,8 @@ def cmd_run(args) -> int:
 
     summary = run_from_args(args)
     if summary is not None:
+        from jaxslam.app.outputs import json_default
+
         print(json.dumps(summary, indent=2, default=json_default))
     return 0
 
@@ -303,6 +305,8 @@ def cmd_evaluate(args) -> int:
     from jaxslam.app import runs
 
     scores = runs.evaluate(args.trajectory, relations=args.relations, gps=args.gps)
+    from jaxslam.app.outputs import json_default
+
     text = json.dumps(scores, indent=2, default=json_default)
     print(text)
     if args.out is not None:
@@ -321,6 +325,8 @@ def cmd_plot(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from jaxslam.app.calibrate import run as run_calibrate
+
+    from jaxslam.app.outputs import json_default
 
     print(json.dumps(run_calibrate(args), indent=2, default=json_default))
     return 0
@@ -355,7 +361,7 @@ def console_main() -> None:
     usual way. Errors (``SystemExit`` from the parser, tracebacks) take the usual way.
     Ctrl-C exits with status 130 and one line (:mod:`jaxslam.app.interrupts`).
     """
-    from jaxslam.app.interrupts import exit_on_interrupt
+    from jaxslam.app.interrupts import exit_on_interrupt  # first: importing this module loads nothing else
 
     with exit_on_interrupt(next((word for word in sys.argv[1:] if word in COMMANDS), None)):
         code = main()

@@ -133,3 +133,19 @@ def test_log_checks_pass_on_a_good_log_and_report(tmp_path):
     report = check_laser_log(load_carmen(path))
     assert report["scans"] == 30 and report["stamp_steps_repeated"] == 1 and report["stamps_advance"]
     assert report["max_odometry_step_m"] == pytest.approx(np.hypot(0.1, 0.02), abs=1e-5)
+
+
+@pytest.mark.parametrize("fill, fragment", [(np.inf, "has a return"), (np.nan, "has a return"),
+                                            (None, "at least two")])
+def test_bags_without_returns_or_with_one_scan(run_cli, tmp_path, fill, fragment):
+    import dataclasses
+
+    from jaxslam.datasets.carmen import load_carmen
+    from jaxslam.datasets.rosbag_write import write_rosbag
+
+    log = load_carmen(room_log(tmp_path / "room.clf"))
+    if fill is not None:
+        log = dataclasses.replace(log, ranges=np.full_like(log.ranges, fill))
+    bag = write_rosbag(log, tmp_path / "robot.bag", version=1, scans=None if fill is not None else slice(0, 1))
+    status, _, err = run_cli("run", "--dataset", bag, "--out", tmp_path / "out", "--no-progress")
+    assert_one_line_error(status, err, "robot.bag", fragment)
