@@ -43,6 +43,37 @@ def check_interrupted(out: Path, status: int, stderr: str) -> None:
     assert not (out / "summary.json").exists()
 
 
+GC_INTERRUPT = """
+import gc, os, signal, sys
+from jaxslam.app import cli
+
+fired = []
+
+def interrupt(phase, info):  # as JAX's gc callback: Python code the signal can land in
+    if phase == "start" and not fired:
+        fired.append(True)
+        os.kill(os.getpid(), signal.SIGINT)
+
+def armed(args, command=cli.COMMANDS["datasets"]):  # the command starts, then a collection
+    gc.callbacks.append(interrupt)
+    gc.set_threshold(1)
+    return command(args)
+
+cli.COMMANDS["datasets"] = armed
+sys.argv = ["jaxslam", "datasets"]
+cli.console_main()
+"""
+
+
+def test_interrupt_inside_a_gc_callback_is_not_lost():
+    """Python drops a KeyboardInterrupt raised inside a gc callback ("Exception
+    ignored"), and the command went on to exit 0; the handler exits 130 there too."""
+    done = subprocess.run([sys.executable, "-c", GC_INTERRUPT], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    assert done.returncode == 130, done.stderr
+    assert done.stderr.strip().splitlines() == ["jaxslam datasets: interrupted"], done.stderr
+
+
 @pytest.mark.parametrize("delay", [0.0, 0.6])
 def test_interrupt_while_compiling_exits_130(tmp_path, delay):
     out = tmp_path / "run"
