@@ -399,7 +399,7 @@ def run(
     try:
         xla_threads = set_threads(threads, algorithm, particles)
     except ValueError as err:
-        raise RunError(str(err)) from None
+        raise RunError(f"--threads {threads}: {err}" if threads is not None else str(err)) from None
     dtype = jnp.float64 if float64 else jnp.float32
     out = prepare_folder(Path(out))
     dataset_name = info.name if info is not None else str(Path(path).resolve())
