@@ -37,6 +37,13 @@ def on_interrupt(callback: Callable[[], None]) -> Iterator[None]:
         _callbacks.remove(callback)
 
 
+def _progress_bar_open() -> bool:
+    """Whether a ``tqdm`` bar (:class:`jaxslam.runtime.progress.ProgressBar`) is on
+    screen, its line unfinished."""
+    bar_type = getattr(sys.modules.get("tqdm.std"), "tqdm", None)
+    return bool(getattr(bar_type, "_instances", ()))
+
+
 @contextlib.contextmanager
 def exit_on_interrupt(command: str | None) -> Iterator[None]:
     """Inside the block, SIGINT ends the process with status 130 and one line,
@@ -58,10 +65,7 @@ def exit_on_interrupt(command: str | None) -> Iterator[None]:
                 stream.flush()
             except (OSError, ValueError, RuntimeError):  # RuntimeError: a write under way
                 pass
-        try:
-            fresh_line = "\n" if sys.stderr.isatty() else ""  # after a progress bar's
-        except (AttributeError, ValueError):
-            fresh_line = ""
+        fresh_line = "\n" if _progress_bar_open() else ""  # not after the bar on its line
         os.write(2, f"{fresh_line}jaxslam{' ' + command if command else ''}: interrupted\n".encode())
         os._exit(130)
 
