@@ -86,3 +86,30 @@ def test_interrupt_while_compiling_many_times(tmp_path):
     for attempt in range(20):
         out = tmp_path / f"run{attempt}"
         check_interrupted(out, *interrupt_while_compiling(out, rng.uniform(0.0, 1.5)))
+
+
+@pytest.mark.long
+def test_interrupted_loop_resumes_to_the_uninterrupted_result(tmp_path):
+    """Ctrl-C in the filter loop of a checkpointed run: exit 130, run.json interrupted,
+    and ``--resume`` finishes it with the trajectory of a run never interrupted."""
+    command = [sys.executable, "-m", "jaxslam.app.cli", "run", "--algorithm", "erb-upf", "--particles", "50",
+               "--checkpoint-every", "20", "--chunk", "20", "--no-plots"]
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    subprocess.run(command + ["--out", str(whole), "--no-progress"], check=True, capture_output=True, timeout=300)
+    process = subprocess.Popen(command + ["--out", str(cut)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                               text=True)
+    seen = ""
+    while "scan/s" not in seen:
+        char = process.stderr.read(1)
+        assert char, seen
+        seen += char
+    time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, rest = process.communicate(timeout=120)
+    assert process.returncode == 130, seen + rest
+    assert json.loads((cut / "run.json").read_text())["status"] == "interrupted"
+    assert (cut / "checkpoint.npz").exists() and not (cut / "trajectory.tum").exists()
+    subprocess.run([sys.executable, "-m", "jaxslam.app.cli", "run", "--resume", str(cut), "--no-progress"],
+                   check=True, capture_output=True, timeout=300)
+    assert json.loads((cut / "run.json").read_text())["status"] == "complete"
+    assert (cut / "trajectory.tum").read_bytes() == (whole / "trajectory.tum").read_bytes()
