@@ -187,3 +187,11 @@ def test_unknown_dataset_names_every_kind_of_input(tmp_path, capsys):
     for kind in ("CARMEN log", ".clf", ".log", ".carmen", ".gz", "ROS 1 bag", "ROS 2 bag", "metadata.yaml",
                  *ROSBAG_SUFFIXES):
         assert kind in line, kind
+
+
+def test_evaluate_threshold_is_the_scorings():
+    """The command line states evaluate's warning threshold without importing the
+    metrics at load; it must be the one the scoring uses."""
+    from jaxslam.metrics.scoring import MIN_MATCHED_FRACTION
+
+    assert cli.MIN_MATCHED_FRACTION == MIN_MATCHED_FRACTION

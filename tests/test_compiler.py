@@ -103,8 +103,10 @@ def test_set_threads_precedence(fresh_backend, monkeypatch):
     # the argument wins over the environment
     assert compiler.set_threads(2, "erb-upf", 100) == {"threads": 2, "source": "argument"}
     assert seen[-1] == "2"
-    assert compiler.set_threads("0", "erb-upf", 100) == {"threads": "all", "source": "argument"}
+    assert compiler.set_threads("all", "erb-upf", 100) == {"threads": "all", "source": "argument"}
     assert seen[-1] is None
+    with pytest.raises(ValueError, match="'all' for every core"):  # 0 is no count and not a silent 'all'
+        compiler.set_threads("0", "erb-upf", 100)
     monkeypatch.delenv(compiler.THREADS_ENV)
     # a user's own NPROC is kept, and an argument overrides it only for the backend start
     monkeypatch.setenv("NPROC", "3")

@@ -15,9 +15,10 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from jaxslam.datasets.registry import ALGORITHMS
-from jaxslam.app.outputs import json_default
-from jaxslam.metrics.scoring import MIN_MATCHED_FRACTION
+# The minimum share of relations or GPS fixes that evaluate must match before it
+# warns; it is also jaxslam.metrics.scoring.MIN_MATCHED_FRACTION (a test keeps the two
+# equal), written here so that this module imports only the standard library at load.
+MIN_MATCHED_FRACTION = 0.9
 
 EPILOG = """examples:
   jaxslam run --out runs/demo                      simulated landmark world, ERB, 100 particles
@@ -103,6 +104,8 @@ def _override(text: str) -> tuple[str, float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from jaxslam.datasets.registry import ALGORITHMS
+
     parser = _Parser(
         prog="jaxslam",
         description="Batched JAX particle filters for SLAM (RB/ERB unscented FastSLAM, SRUPF-GM, GMapping-style).",
@@ -142,6 +145,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--max-range", type=float, default=None, metavar="M",
                      help="CARMEN logs: range limit in m; readings at or beyond it are 'no return' (default: the "
                           "logged limit, lowered to a detected no-return sentinel pile, see summary.json no_return)")
+    run.add_argument("--mixed-geometry", choices=("raise", "pad"), default=None,
+                     help="CARMEN logs whose beam geometry changes mid-log: refuse them (raise, the default) or "
+                          "pad their scans to a common length (pad)")
+    run.add_argument("--max-odometry-step", type=float, default=None, metavar="M",
+                     help="laser logs: refuse a log whose odometry moves more than this between two scans, a "
+                          "fault of the odometry rather than motion (default 10; jaxslam.datasets.checks)")
     run.add_argument("--loop-closure", action=argparse.BooleanOptionalAction, default=None,
                      help="laser data: where the tracking's match fails in a mapped place, search up to 6 m "
                           "(each axis) and 8 deg around it, after long travel without a closure up to 10 m (2 cm "
@@ -252,6 +261,8 @@ def cmd_run(args) -> int:
     if summary is None:  # --list-params
         return 0
     if args.json:
+        from jaxslam.app.outputs import json_default
+
         print(json.dumps(summary, indent=2, default=json_default))
     else:
         from jaxslam.app.runs import report
@@ -269,11 +280,10 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
     from jaxslam.datasets.registry import DEFAULT_ALGORITHM
 
     if args.list_params:
+        from jaxslam.app.params import parameter_table
+
         algorithm = args.algorithm or DEFAULT_ALGORITHM[runs.resolve_dataset(args.dataset, None)[2]]
-        chosen = ("usable_range", "score_range")  # grid filters: from the log (jaxslam.grid.range_rule)
-        for name, default in runs.param_fields(algorithm).items():
-            note = "  (indoor logs; chosen from the log's readings unless set: summary.json range_rule)"
-            print(f"{name:24s} {default!r}" + (note if name in chosen else ""))
+        print(parameter_table(algorithm))
         return None
     if args.resume is not None:
         saved = args.resume / "run.json"
@@ -284,6 +294,9 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
             run_args = json.loads(saved.read_text())
         except json.JSONDecodeError as err:
             raise DataFormatError(saved, err.lineno, f"not valid JSON: {err.msg}") from None
+        except (OSError, UnicodeDecodeError) as err:
+            raise DataFormatError(saved, None, f"cannot read: {err}") from None
+        run_args = saved_arguments(saved, run_args)
         if args.threads is not None:
             run_args["threads"] = args.threads
         return runs.run(out=args.resume, progress=not args.no_progress, plots=not args.no_plots,
@@ -291,10 +304,17 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
     if args.out is None:
         raise runs.RunError("--out is required (the folder the outputs go to)")
     overrides = dict(args.overrides or [])
+    from_file = {}
     if getattr(args, "params", None) is not None:
         from jaxslam.app.calibrate import load_params_file
 
-        overrides = {**load_params_file(args.params), **overrides}
+        from_file = load_params_file(args.params)
+    # each value checked where it was given, before anything is loaded or compiled
+    algorithm = args.algorithm or DEFAULT_ALGORITHM[runs.resolve_dataset(args.dataset, None)[2]]
+    if runs.ALGORITHMS[algorithm] == runs.resolve_dataset(args.dataset, algorithm)[2]:
+        runs.check_overrides(algorithm, from_file, origin=f"--params {str(args.params)!r}:")
+        runs.check_overrides(algorithm, overrides, origin="--set")
+    overrides = {**from_file, **overrides}
     return runs.run(
         out=args.out, dataset=args.dataset, algorithm=args.algorithm, particles=args.particles, seed=args.seed,
         max_steps=args.max_steps, overrides=overrides, progress=not args.no_progress,
@@ -304,13 +324,36 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
              "laser_offset": args.laser_mount},
         rerun=args.rerun, rerun_spawn=args.rerun_spawn,
         max_range=args.max_range, threads=args.threads, loop_closure=args.loop_closure,
+        max_odometry_step=args.max_odometry_step, mixed_geometry=args.mixed_geometry,
     )
+
+
+def saved_arguments(path: Path, saved) -> dict[str, Any]:
+    """The arguments of :func:`jaxslam.app.runs.run` recorded in a ``run.json``
+    (its ``status`` and ``reason`` left out), or a ``DataFormatError`` naming a key
+    that is not one of them."""
+    import inspect
+
+    from jaxslam.app import runs
+    from jaxslam.datasets.paths import DataFormatError
+
+    if not isinstance(saved, dict):
+        raise DataFormatError(path, None, "expected a JSON object of the run's arguments")
+    own = {"out", "progress", "plots", "checkpoint_every", "resume"}  # given by the command line
+    known = set(inspect.signature(runs.run).parameters) - own
+    unknown = sorted(set(saved) - known - {"status", "reason"})
+    if unknown:
+        raise DataFormatError(path, None, f"unknown key(s) {', '.join(map(repr, unknown))}: not written by "
+                                          "this version of `jaxslam run`")
+    return {k: v for k, v in saved.items() if k in known}
 
 
 def cmd_evaluate(args) -> int:
     from jaxslam.app import runs
 
     scores = runs.evaluate(args.trajectory, relations=args.relations, gps=args.gps)
+    from jaxslam.app.outputs import json_default
+
     text = json.dumps(scores, indent=2, default=json_default)
     print(text)
     if args.out is not None:
@@ -345,6 +388,8 @@ def cmd_plot(args) -> int:
 def cmd_calibrate(args) -> int:
     from jaxslam.app.calibrate import run as run_calibrate
 
+    from jaxslam.app.outputs import json_default
+
     print(json.dumps(run_calibrate(args), indent=2, default=json_default))
     return 0
 
@@ -361,9 +406,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return COMMANDS[args.command](args)
     except (CliError, RunError, DatasetNotFoundError, DataFormatError) as err:
-        parser.exit(2, f"jaxslam {args.command}: error: {err}\n")
+        parser.exit(2, f"jaxslam {args.command}: error: {' '.join(str(err).split())}\n")  # one line
     except KeyboardInterrupt:
-        parser.exit(130, "interrupted\n")
+        parser.exit(130, f"jaxslam {args.command}: interrupted\n")
 
 
 def console_main() -> None:
@@ -376,8 +421,12 @@ def console_main() -> None:
     streams are flushed and the process ends with :func:`os._exit`. With a non-daemon
     thread still alive, or without CPython's ``atexit._run_exitfuncs``, it exits the
     usual way. Errors (``SystemExit`` from the parser, tracebacks) take the usual way.
+    Ctrl-C exits with status 130 and one line (:mod:`jaxslam.app.interrupts`).
     """
-    code = main()
+    from jaxslam.app.interrupts import exit_on_interrupt  # first: importing this module loads nothing else
+
+    with exit_on_interrupt(next((word for word in sys.argv[1:] if word in COMMANDS), None)):
+        code = main()
     run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
     if run_exit_handlers is None or others:

@@ -1,6 +1,7 @@
 """The files of a ``jaxslam run`` output folder, written and redrawn in one place.
 
-* ``summary.json`` (:func:`write_json`, atomically) and ``run.json``;
+* ``summary.json`` (:func:`write_summary`: strict JSON, atomically) and ``run.json``
+  (the run's arguments and its ``status``, :func:`marked_run`);
 * ``trajectory.tum`` — the estimate in the TUM format;
 * landmark runs: ``landmarks.csv`` (id, x, y, covariance);
 * grid runs: ``map.pgm`` + ``map.yaml`` (ROS map_server convention) and ``map.png``
@@ -14,9 +15,11 @@ Host-side NumPy; matplotlib only inside :func:`replot` (via :mod:`jaxslam.app.pl
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
+import shutil
 import threading
 import zipfile
 from pathlib import Path
@@ -37,11 +40,127 @@ def json_default(value):
     return str(value)
 
 
+def strict_json(value, where: str = "", nonfinite: list | None = None):
+    """``value`` as plain JSON data (NumPy scalars and arrays as numbers and lists,
+    tuples as lists, anything else but ``None``/``bool``/``str`` as its ``str``), with
+    every NaN or infinity replaced by ``None`` and its place (``"a.b[2]"``) appended
+    to ``nonfinite``: JSON has no such numbers, and Python's ``NaN``/``Infinity`` are
+    not JSON."""
+    nonfinite = [] if nonfinite is None else nonfinite
+    if isinstance(value, dict):
+        return {str(k): strict_json(v, f"{where}.{k}" if where else str(k), nonfinite) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [strict_json(v, f"{where}[{i}]", nonfinite) for i, v in enumerate(value)]
+    if value is None or isinstance(value, (bool, str, np.bool_)):
+        return bool(value) if isinstance(value, np.bool_) else value
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        if np.isfinite(value):
+            return float(value)
+        nonfinite.append(where)
+        return None
+    return json_default(value)
+
+
 def write_json(path: Path, payload: dict) -> None:
-    """Write JSON atomically (temporary file, then rename)."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, default=json_default) + "\n")
-    tmp.replace(path)
+    """Write strict JSON (:func:`strict_json`: no NaN or infinity) atomically: a
+    temporary file, then a rename."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(strict_json(payload), indent=2, allow_nan=False) + "\n")
+    os.replace(tmp, path)
+
+
+def write_summary(path: Path, summary: dict) -> dict:
+    """Write ``summary.json`` (:func:`write_json`) and return what it holds: where a
+    value was NaN or infinite it holds ``null``, and ``nonfinite_values`` lists those
+    places (absent when there were none)."""
+    places: list[str] = []
+    clean = strict_json(summary, nonfinite=places)
+    if places:
+        clean["nonfinite_values"] = places
+    write_json(path, clean)
+    return clean
+
+
+STAGE_PREFIX = ".jaxslam-partial-"
+
+
+def prepare_folder(out: Path) -> Path:
+    """``out`` if a run can write its folder there, else a ``RunError`` naming it
+    (an existing file, a folder or parent that cannot be written). Creates nothing."""
+    from jaxslam.app.runs import RunError
+
+    if out.exists() and not out.is_dir():
+        raise RunError(f"--out {str(out)!r}: is a file, not a folder")
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise RunError(f"--out {str(out)!r}: {str(existing)!r} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise RunError(f"--out {str(out)!r}: the folder {str(existing)!r} is not writable")
+    return out
+
+
+@contextlib.contextmanager
+def marked_run(out: Path, run_args: dict):
+    """A run's output folder, whole or marked as not.
+
+    Creates ``out`` and writes ``out/run.json`` (``run_args`` with ``status``
+    ``"running"``); yields a staging folder inside ``out`` for the run's files. When
+    the block ends normally the files are moved into ``out`` (``summary.json`` last)
+    and the status becomes ``"complete"``; on Ctrl-C it becomes ``"interrupted"``, on
+    an error ``"failed"``, each with a ``reason``, and the staged files are removed
+    (the files of an earlier run in ``out`` are left as they were). A checkpoint
+    (``--checkpoint-every``) is written to ``out`` directly, so that such a run can be
+    continued with ``--resume``.
+    """
+    from jaxslam.app.interrupts import on_interrupt
+    from jaxslam.app.runs import RunError
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for stale in out.glob(f"{STAGE_PREFIX}*"):
+            shutil.rmtree(stale, ignore_errors=True)
+        stage = out / f"{STAGE_PREFIX}{os.getpid()}"
+        stage.mkdir()
+        _mark(out, run_args, "running")
+    except OSError as err:
+        raise RunError(f"--out {str(out)!r}: cannot write there: {err.strerror or err}") from None
+
+    def interrupted():
+        _mark(out, run_args, "interrupted", "interrupted by the user (SIGINT)")
+        shutil.rmtree(stage, ignore_errors=True)
+
+    try:
+        with on_interrupt(interrupted):
+            yield stage
+            names = sorted(p.name for p in stage.iterdir())
+            for name in sorted(names, key=lambda n: n == "summary.json"):
+                os.replace(stage / name, out / name)
+    except KeyboardInterrupt:
+        _mark(out, run_args, "interrupted", "interrupted by the user (KeyboardInterrupt)")
+        raise
+    except BaseException as err:
+        text = str(err).strip().splitlines()
+        _mark(out, run_args, "failed", f"{type(err).__name__}: {text[0] if text else ''}".rstrip(": "))
+        raise
+    else:
+        _mark(out, run_args, "complete")
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+RUN_STATES = ("running", "complete", "interrupted", "failed")
+"""The ``status`` of a ``run.json`` (:func:`marked_run`)."""
+
+
+def _mark(out: Path, run_args: dict, status: str, reason: str | None = None) -> None:
+    try:
+        write_json(out / "run.json", {**run_args, "status": status, **({"reason": reason} if reason else {})})
+    except OSError:
+        pass
 
 
 def write_npz(path: Path, **arrays) -> None:

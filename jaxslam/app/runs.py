@@ -13,6 +13,7 @@ to :func:`run` in :mod:`jaxslam.app.cli`.
 from __future__ import annotations
 
 import contextlib
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -20,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from jaxslam.runtime.compiler import cpus_allowed, set_threads
+from jaxslam.datasets.checks import MAX_ODOMETRY_STEP, check_laser_log
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
-from jaxslam.app.outputs import prefetch_plotting, write_json, write_with_figures
+from jaxslam.app.outputs import marked_run, prefetch_plotting, prepare_folder, write_summary, write_with_figures
 
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
@@ -90,19 +92,19 @@ def param_fields(algorithm: str) -> dict[str, Any]:
     return values
 
 
-def check_overrides(algorithm: str, overrides: dict[str, float]) -> None:
-    fields = param_fields(algorithm)
+def check_overrides(algorithm: str, overrides: dict[str, float], origin: str = "--set") -> dict[str, Any]:
+    """``overrides`` by ``Params`` field (``str`` as ``str_``), each value checked against
+    its specification (:mod:`jaxslam.app.params`); a ``RunError`` naming ``origin``,
+    the parameter and the value otherwise."""
+    from jaxslam.app.params import check_value
+
+    fields = {}
     for name, value in overrides.items():
-        default = fields.get(name, KeyError)
-        if default is KeyError:
-            scalar = sorted(n for n, v in fields.items() if isinstance(v, (int, float)))
-            raise RunError(f"--set {name}: {algorithm} has no parameter {name!r}; numeric parameters: {', '.join(scalar)}")
-        if isinstance(value, list):
-            # A vector (from a calibration file): as many numbers as the parameter has.
-            if np.ndim(default) != 1 or np.size(default) != len(value):
-                raise RunError(f"--params {name}: expected {np.size(default)} number(s), got a list of {len(value)}")
-        elif not isinstance(default, (int, float)):
-            raise RunError(f"--set {name}: parameter {name!r} is not a single number and cannot be set here")
+        try:
+            fields[check_value(algorithm, name, value, origin)] = value
+        except ValueError as err:
+            raise RunError(str(err)) from None
+    return fields
 
 
 # --------------------------------------------------------------------------- landmark
@@ -157,15 +159,25 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 # --------------------------------------------------------------------------- grid
 
 
-def _load_log(info, path, seed, bag, max_range):
+def _load_log(info, path, seed, bag, max_range, mixed_geometry=None):
     """The laser log of a registry entry, a ROS bag or a CARMEN log path, and how the
     log cache served it (:mod:`jaxslam.datasets.log_cache`; CARMEN logs only, in the
     compilation-cache folder when that is on)."""
     if path is not None and _is_bag(path):
+        from jaxslam.datasets.paths import DataFormatError
         from jaxslam.datasets.rosbag import load_rosbag
 
-        return load_rosbag(path, **(bag or {})), "off"
+        try:
+            return load_rosbag(path, **(bag or {})), "off"
+        except (DataFormatError, FileNotFoundError):
+            raise
+        except Exception as err:  # noqa: BLE001 - any failure of the bag reader on damaged bytes
+            text = " ".join(str(err).split())
+            detail = f"{type(err).__name__}: {text}" if text else type(err).__name__
+            raise DataFormatError(path, None, f"cannot read the bag ({detail})") from None
     options = {"max_range": max_range} if max_range is not None else {}
+    if mixed_geometry is not None:
+        options["mixed_geometry"] = mixed_geometry
     if info is not None and info.loader != "carmen":
         return info.load(seed=seed, **options), "off"
     from jaxslam.datasets.log_cache import load_carmen_cached
@@ -173,6 +185,22 @@ def _load_log(info, path, seed, bag, max_range):
     if info is not None:
         path, options = info.paths()[0], {**info.options, **options}
     return load_carmen_cached(path, _log_cache_folder(), **options)
+
+
+def load_checked_log(info, path, seed=0, bag=None, max_range=None, mixed_geometry=None, max_odometry_step=None,
+                     temporal=False):
+    """``(log, log_cache, log_checks)``: the laser log of a registry entry ``info`` or
+    a ``path`` (CARMEN log or ROS bag), how the log cache served it, and what
+    :func:`jaxslam.datasets.checks.check_laser_log` found (a log that cannot give a
+    true map raises ``DataFormatError`` naming the file and the scan). A warning line
+    says when the scan stamps do not advance."""
+    log, log_cache = _load_log(info, path, seed, bag, max_range, mixed_geometry)
+    log_checks = check_laser_log(log, MAX_ODOMETRY_STEP if max_odometry_step is None else max_odometry_step,
+                                 temporal=temporal)
+    if not log_checks["stamps_advance"]:
+        print(f"jaxslam run: warning: {log.path}: its scan stamps do not advance ({log_checks['scans']} scans over "
+              f"{log_checks['stamp_span_s']:g} s); trajectory.tum carries them as logged", file=sys.stderr)
+    return log, log_cache, log_checks
 
 
 def _log_cache_folder() -> str | None:
@@ -184,18 +212,22 @@ def _log_cache_folder() -> str | None:
 
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
-             checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False, loop_closure=None):
+             checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False, loop_closure=None,
+             max_odometry_step=None, mixed_geometry=None):
     """Run a grid filter on a laser log and score it: ``(summary, arrays, write_files)``,
     the figures' data (:func:`jaxslam.app.outputs.grid_arrays`) and a function that writes
     the run's files. ``prefetch``: import the plotting module on a thread once the log
     is loaded."""
     from jaxslam.grid import experiment as grid_experiment
+    from jaxslam.grid.paged import PoolLimitError
     from jaxslam.metrics.scoring import score_grid_run
     from jaxslam.app.outputs import grid_arrays, write_grid_outputs
 
     name = info.name if info is not None else str(path)
     loading = time.perf_counter()
-    log, log_cache = _load_log(info, path, seed, bag, max_range)
+    temporal = (keyframes or {}).get("temporal", overrides.get("temporal_update", -1.0))
+    log, log_cache, log_checks = load_checked_log(info, path, seed, bag, max_range, mixed_geometry,
+                                                  max_odometry_step, temporal is not None and float(temporal) > 0)
     load_s = time.perf_counter() - loading
     if prefetch:
         prefetch_plotting()
@@ -203,13 +235,16 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     if viz is not None:
         live = _grid_live_log(viz, log, chunk)
         checkpoint, chunk = live, live.every
-    result = grid_experiment.run_grid_slam(
-        log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
-        config=None if loop_closure is None else {"closure": bool(loop_closure)},
-        progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
-        **({"checkpoint": checkpoint} if checkpoint is not None else {}),
-        **{f"{k}_update": v for k, v in (keyframes or {}).items()},
-    )
+    try:
+        result = grid_experiment.run_grid_slam(
+            log, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
+            config=None if loop_closure is None else {"closure": bool(loop_closure)},
+            progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
+            **({"checkpoint": checkpoint} if checkpoint is not None else {}),
+            **{f"{k}_update": v for k, v in (keyframes or {}).items()},
+        )
+    except PoolLimitError as err:
+        raise RunError(f"--particles {particles}: {err}") from None
     if live is not None and not np.array_equal(live.keyframes, result.keyframes):
         raise RunError("the live view placed the keyframes differently from the run (a bug); its recording is wrong")
     summary: dict[str, Any] = {
@@ -227,7 +262,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}), "load_s": load_s, "log_cache": log_cache,
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
-        "odometry_repair": getattr(log, "odometry_repair", {}),
+        "odometry_repair": getattr(log, "odometry_repair", {}), "log_checks": log_checks,
     }
     if path is not None and _is_bag(path):
         summary["bag"] = dict(log.params)  # the topics and frames used
@@ -281,6 +316,8 @@ def _bag_options(bag: dict | None, path) -> dict:
                        "(a .bag file, a ROS 2 bag folder, .mcap or .db3)")
     if "laser_offset" in options:
         options["laser_offset"] = [float(v) for v in options["laser_offset"]]
+        if not np.isfinite(options["laser_offset"]).all():
+            raise RunError(f"--laser-mount {' '.join(map(str, options['laser_offset']))}: must be three finite numbers")
     return options
 
 
@@ -308,6 +345,8 @@ def run(
     max_range: float | None = None,
     threads: int | str | None = None,
     loop_closure: bool | None = None,
+    max_odometry_step: float | None = None,
+    mixed_geometry: str | None = None,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
 
@@ -330,6 +369,15 @@ def run(
     (:mod:`jaxslam.grid.closure`) on or off; None keeps the algorithm's default (on for
     SRUPF-GM, off for the GMapping-style filter, :func:`jaxslam.grid.experiment.closure_default`).
     ``run.json`` and a checkpoint's fingerprint record what ran, default or not.
+    ``mixed_geometry`` (CARMEN logs): ``"pad"`` pads the scans of a log whose beam
+    geometry changes to a common length (:func:`jaxslam.datasets.carmen.load_carmen`),
+    ``"raise"`` (the default) refuses such a log.
+    ``max_odometry_step`` (laser data; m, default
+    :data:`jaxslam.datasets.checks.MAX_ODOMETRY_STEP`): a log whose odometry moves
+    farther between two scans is refused (:func:`jaxslam.datasets.checks.check_laser_log`,
+    which also refuses logs of fewer than two scans or without a single return).
+    The folder is written whole or marked as not (:func:`jaxslam.app.outputs.marked_run`:
+    ``run.json`` ``status``).
     ``threads`` sizes XLA's CPU thread pool (a count or ``"all"``; default
     ``$JAXSLAM_THREADS``, else :func:`jaxslam.runtime.compiler.auto_threads`):
     :func:`jaxslam.runtime.compiler.set_threads`, which can act only before the process's
@@ -348,11 +396,14 @@ def run(
     if info is not None and not info.simulated:
         info.paths()  # raises DatasetNotFoundError naming what is missing
     overrides = dict(overrides or {})
-    check_overrides(algorithm, overrides)
+    fields = check_overrides(algorithm, overrides)
     keyframes = {k: float(v) for k, v in (keyframes or {}).items() if v is not None}
     unknown = set(keyframes) - {"linear", "angular", "temporal"}
     if unknown:
         raise RunError(f"unknown keyframe threshold(s) {sorted(unknown)}; use linear, angular, temporal")
+    if kind == "laser":
+        for key, value in keyframes.items():
+            check_overrides(algorithm, {f"{key}_update": value}, origin=f"--{key}-update:")
     if keyframes and kind != "laser":
         raise RunError("keyframe thresholds (--linear-update/--angular-update/--temporal-update) apply to laser "
                        "data only; the landmark filters process every scan")
@@ -363,10 +414,9 @@ def run(
     try:
         xla_threads = set_threads(threads, algorithm, particles)
     except ValueError as err:
-        raise RunError(str(err)) from None
+        raise RunError(f"--threads {threads}: {err}" if threads is not None else str(err)) from None
     dtype = jnp.float64 if float64 else jnp.float32
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_folder(Path(out))
     dataset_name = info.name if info is not None else str(Path(path).resolve())
     run_args = {"dataset": dataset_name, "algorithm": algorithm, "particles": particles, "seed": seed,
                 "max_steps": max_steps, "overrides": overrides, "float64": float64, "chunk": chunk}
@@ -375,13 +425,20 @@ def run(
     if bag:
         run_args["bag"] = bag
     if max_range is not None:
-        if kind != "laser" or (info is not None and info.simulated):
-            raise RunError("--max-range applies to CARMEN logs only")
-        if not max_range > 0:
-            raise RunError(f"--max-range must be positive, got {max_range}")
-        run_args["max_range"] = float(max_range)
+        run_args["max_range"] = _log_metres("--max-range", max_range, kind, info, "CARMEN logs")
     if threads is not None:
         run_args["threads"] = threads
+    if max_odometry_step is not None:
+        run_args["max_odometry_step"] = _log_metres("--max-odometry-step", max_odometry_step, kind, info,
+                                                    "laser logs (CARMEN logs and ROS bags)")
+    if mixed_geometry is not None:
+        if mixed_geometry not in ("raise", "pad"):
+            raise RunError(f"--mixed-geometry must be 'raise' or 'pad', got {mixed_geometry!r}")
+        if kind != "laser" or (info is not None and info.simulated) or (path is not None and _is_bag(path)):
+            raise RunError("--mixed-geometry applies to CARMEN logs only")
+        run_args["mixed_geometry"] = mixed_geometry
+    if kind == "laser" and max_steps is not None and max_steps < 2:
+        raise RunError(f"--max-steps {max_steps}: a laser run needs at least 2 keyframes")
     if loop_closure is not None and kind != "laser":
         raise RunError("--loop-closure / --no-loop-closure apply to laser data only")
     if kind == "laser":
@@ -408,13 +465,32 @@ def run(
                                 resume=resume)
         if resume and not checkpoint.path.exists():
             raise RunError(f"--resume: no checkpoint in {str(out)!r} (run with --checkpoint-every N first)")
-    if not resume:
-        write_json(out / "run.json", run_args)
+    with marked_run(out, run_args) as stage:
+        return _run_and_write(out, stage, run_args, info, path, kind, algorithm, particles, seed, max_steps,
+                              overrides, fields, progress, chunk, dtype, float64, plots, checkpoint, keyframes, bag,
+                              rerun, rerun_spawn, dataset_name, max_range, loop_closure, resume, xla_threads)
+
+
+def _log_metres(option: str, value, kind: str, info, logs: str) -> float:
+    """A length option of recorded laser logs, checked."""
+    if kind != "laser" or (info is not None and info.simulated):
+        raise RunError(f"{option} applies to {logs} only")
+    if not (np.isfinite(value) and value > 0):
+        raise RunError(f"{option} must be a positive number of metres, got {value}")
+    return float(value)
+
+
+def _run_and_write(out, stage, run_args, info, path, kind, algorithm, particles, seed, max_steps, overrides,
+                   fields, progress, chunk, dtype, float64, plots, checkpoint, keyframes, bag, rerun, rerun_spawn,
+                   dataset_name, max_range, loop_closure, resume, xla_threads):
+    """The run itself, its files written to ``stage`` (see :func:`marked_run`)."""
+    import jax
+
     from jaxslam.runtime.cache import CompileCounter
 
     started = time.time()
     runner = run_landmark if kind == "landmark" else run_grid
-    args = (info, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype)
+    args = (info, algorithm, particles, seed, stage, max_steps, fields, progress, chunk, dtype)
     if kind == "laser":
         args = (info, path) + args[1:]
     extra = {"keyframes": keyframes} if keyframes else {}
@@ -425,6 +501,9 @@ def run(
         extra["max_range"] = float(max_range)
     if loop_closure is not None:
         extra["loop_closure"] = bool(loop_closure)
+    for name in ("max_odometry_step", "mixed_geometry"):
+        if name in run_args:
+            extra[name] = run_args[name]
     if bag:
         extra["bag"] = bag
     viz = _open_viz(rerun, rerun_spawn, Path(dataset_name).name)
@@ -453,11 +532,10 @@ def run(
     # load_s, output_s: reading the data; writing the files and drawing the figures
     # (seconds; the two overlap)
     writing = time.perf_counter()
-    write_with_figures(out, write_files, arrays if plots else None)
+    write_with_figures(stage, write_files, arrays if plots else None)
     summary["output_s"] = time.perf_counter() - writing
     summary["total_s"] = time.time() - started
-    write_json(out / "summary.json", summary)
-    return summary
+    return write_summary(stage / "summary.json", summary)
 
 
 # --------------------------------------------------------------------------- the run's report

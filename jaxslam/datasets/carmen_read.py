@@ -223,7 +223,8 @@ def read_lines_slow(
                             line_number,
                             f"scan geometry changes: {describe_geometry(record['geometry'])} here, "
                             f"but {describe_geometry(geometries[0])} on line {first_geometry_line}; "
-                            f"pass mixed_geometry='pad' to pad scans to a common length",
+                            "pass mixed_geometry='pad' (jaxslam run --mixed-geometry pad) to pad scans to a "
+                            "common length",
                         )
                 elif not geometries:
                     first_geometry_line = line_number

@@ -21,11 +21,18 @@ class DatasetNotFoundError(FileNotFoundError):
 
 
 class DataFormatError(ValueError):
-    """A data file is malformed. The message names the file, the line and the problem."""
+    """A data file is malformed. The message names the file, the line and the problem,
+    on one line: a problem text of several lines (a parser's message quoting the damaged
+    bytes) is joined into one and cut at ``MAX_PROBLEM_CHARS`` characters."""
+
+    MAX_PROBLEM_CHARS = 240
 
     def __init__(self, path: os.PathLike | str, line: int | None, problem: str):
         self.path = str(path)
         self.line = line
+        problem = " ".join(str(problem).split())
+        if len(problem) > self.MAX_PROBLEM_CHARS:
+            problem = problem[: self.MAX_PROBLEM_CHARS - 3].rstrip() + "..."
         self.problem = problem
         where = f"{self.path}, line {line}" if line is not None else self.path
         super().__init__(f"{where}: {problem}")

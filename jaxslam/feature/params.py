@@ -23,6 +23,7 @@ from typing import NamedTuple
 from jax import Array
 
 from jaxslam.core.sigma import UTParams
+from jaxslam.core.spec import ParamSpec, at_least, fraction, positive, real
 from jaxslam.models.vehicle import CarGeometry
 
 
@@ -77,6 +78,29 @@ class Params(NamedTuple):
     new_evidence: Array | float = 1.0
     prune_threshold: Array | float = -1e9
     detection_probability: Array | float = 0.9
+
+
+PARAMETER_SPECS: dict[str, ParamSpec] = {
+    "speed_std": positive("m/s", "std of the encoder speed noise per control row"),
+    "steering_std": positive("rad", "std of the steering noise per control row"),
+    "range_std": positive("m", "std of the range noise"),
+    "bearing_std": positive("rad", "std of the bearing noise"),
+    "max_range": positive("m", "sensor range"),
+    "fov": ParamSpec("rad", "sensor field of view, full angle", low=0.0, high=2 * math.pi, low_open=True),
+    "gate_associate": positive("1", "chi-square gate on the squared Mahalanobis distance of a match"),
+    "gate_new": positive("1", "an observation farther than this from every candidate starts a landmark"),
+    "resample_threshold": fraction("resample when the effective sample size falls under this times N"),
+    "pose_reset_std": positive("m, rad", "std the pose covariance is reset to after sampling"),
+    "candidate_margin": at_least(0.0, "m", "extra range around the sensor's footprint for association candidates"),
+    "visibility_margin": real("m", "a landmark counts as missed only this far inside the range and field of view"),
+    "new_evidence": real("1", "evidence of a newly created landmark"),
+    "prune_threshold": real("1", "a landmark whose evidence falls below this is deleted"),
+    "detection_probability": ParamSpec("1", "detection probability of the mixture likelihood", low=0.0, high=1.0,
+                                       low_open=True),
+}
+"""Every scalar parameter of :class:`Params` that ``jaxslam run --set NAME=VALUE``
+accepts for the landmark filters, with its unit, meaning and allowed values (the
+geometry, the sensor offset and the unscented-transform scalings are not scalars)."""
 
 
 PROPOSALS = ("rb", "erb")

@@ -28,7 +28,7 @@ from jaxslam.datasets.registry import algorithms
 from jaxslam.grid import gmapping, srupf
 from jaxslam.grid.driver import DEFAULT_CHUNK, recompilations, run_filter
 from jaxslam.grid.filter import best_particle
-from jaxslam.grid.paged import PagedLayout, pool_stats, stitch, window_side
+from jaxslam.grid.paged import PagedLayout, PoolLimitError, pool_stats, stitch, window_side
 from jaxslam.grid.types import (
     DEFAULT_KEYFRAMES,
     GridSlamConfig,
@@ -178,7 +178,14 @@ def map_layout(
     layout = PagedLayout.covering(float(xmin), float(ymin), float(xmax), float(ymax), resolution)
     side = window_side(window_range, layout)
     slots = 1 + min(layout.table_size, 4096) + particles * side * side // 4
-    return dataclasses.replace(layout, slots=int(2 ** np.ceil(np.log2(slots))))
+    slots = int(2 ** np.ceil(np.log2(slots)))
+    if slots * layout.tile_cells >= 2**31:
+        fit = 2 ** int(np.floor(np.log2((2**31 - 1) // layout.tile_cells)))  # the largest pool
+        most = max(0, (fit - 1 - min(layout.table_size, 4096)) * 4 // (side * side))
+        raise PoolLimitError(f"{particles} particles need a map pool of {slots} tiles of {layout.tile_cells} "
+                             f"cells, beyond int32 cell indexing (2**31 cells); at most {most} particles fit its starting "
+                             "pool")
+    return dataclasses.replace(layout, slots=slots)
 
 
 def best_trajectory(info_poses, info_ancestors, final_index: int) -> np.ndarray:

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.runtime.driver import scan_runner
+from jaxslam.runtime.executables import module_function
 from jaxslam.grid.filter import (
     coarse_start,
     finish_step,
@@ -145,10 +146,10 @@ def _step(
     )
 
 
-step = guard(_step)
+step = module_function(guard(_step), __name__, "step")
 run = scan_runner(step)
 # Every scan a step, keyframes decided on the tracked motion (jaxslam.grid.tracking).
-scan_step = guard(per_scan(_step))
+scan_step = module_function(guard(per_scan(_step)), __name__, "scan_step")
 scan_run = scan_runner(scan_step)
 
 

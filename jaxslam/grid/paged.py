@@ -77,6 +77,10 @@ STATUS_POOL_FULL = 1
 STATUS_OUTSIDE_TABLE = 2
 
 
+class PoolLimitError(ValueError):
+    """The maps need a pool of more cells than ``int32`` indexing reaches (2**31)."""
+
+
 @dataclass(frozen=True)
 class PagedLayout:
     """Static geometry of paged maps: resolution, tile size, page-table box, pool size.
@@ -112,7 +116,8 @@ class PagedLayout:
         if self.slots < 2:
             raise ValueError(f"the pool needs at least 2 slots, got {self.slots}")
         if self.slots * self.tile_cells >= 2**31:
-            raise ValueError(f"a pool of {self.slots} tiles exceeds int32 cell indexing")
+            raise PoolLimitError(f"a map pool of {self.slots} tiles of {self.tile_cells} cells exceeds int32 cell "
+                                 "indexing (2**31 cells)")
 
     @property
     def tile(self) -> int:
@@ -459,6 +464,7 @@ def pool_stats(maps: PagedMaps, layout: PagedLayout) -> dict[str, int | float]:
 
 __all__ = [
     "PINNED",
+    "PoolLimitError",
     "STATUS_OK",
     "STATUS_OUTSIDE_TABLE",
     "STATUS_POOL_FULL",

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from jaxslam.core.spec import ParamSpec, at_least, fraction, positive, real
 from jaxslam.grid.paged import MapStatus, PagedLayout, PagedMaps
 
 
@@ -492,3 +493,74 @@ __all__ = [
     "refused_noise_default",
     "noise_scale_of",
 ]
+
+
+_SRUPF = ("srupf-gm", "srupf-gm-npc")
+
+PARAMETER_SPECS: dict[str, ParamSpec] = {
+    "usable_range": positive("m", "beams are cropped here for the map and ignored beyond it for matching "
+                                  "(chosen from the log's readings unless set)"),
+    "score_range": positive("m", "a beam of range r counts min(1, (score_range / r)^2) beams in the score "
+                                 "(chosen from the log's readings unless set)"),
+    "l_free": ParamSpec("log-odds steps", "update of a cell a beam passes through", high=0.0),
+    "l_occ": at_least(0.0, "log-odds steps", "update of the cell a beam ends in"),
+    "l_max": positive("log-odds steps", "clamp of a cell's log-odds"),
+    "occ_saturation": positive("log-odds steps", "log-odds at which a cell scores 1 in matching"),
+    "score_sigma": positive("m", "width of the matching kernel"),
+    "coarse_sigma": positive("m", "width of the matching kernel in the coarse stage"),
+    "coarse_radius": positive("std", "reach of the coarse stage around the predicted pose"),
+    "log_odds_unit": positive("1", "natural log-odds per step (map export)"),
+    "linear_step": positive("m", "first step of the scan matcher in x and y (GMapping lstep)"),
+    "angular_step": positive("rad", "first step of the scan matcher in heading (GMapping astep)"),
+    "ellipse_radius": positive("std", "reach of the ellipse matcher around the prediction"),
+    "ellipse_step": positive("std", "first step of the ellipse matcher"),
+    "learning_rate": at_least(0.0, "1", "step of the gradient refinement of a match (basis units)"),
+    "min_score": fraction("a match scoring at or below this keeps the uncorrected pose (GMapping minimumScore)"),
+    "linear_update": at_least(0.0, "m", "a scan is a keyframe after this much tracked travel (linearUpdate)"),
+    "angular_update": at_least(0.0, "rad", "... or this much tracked rotation (angularUpdate)"),
+    "temporal_update": real("s", "... or after this many seconds; negative: off (temporalUpdate)"),
+    "track_min_score": fraction("the tracking match replaces the odometry only above this score"),
+    "track_min_curvature": at_least(0.0, "1/m^2", "score curvature a tracking correction needs along a direction"),
+    "track_noise_scale": at_least(0.0, "1", "the proposals' motion noise with tracking, a fraction of the model's"),
+    "track_refused_noise_scale": real("1", "that fraction after a refused tracking match; negative: "
+                                           "track_noise_scale"),
+    "track_turn": at_least(0.0, "rad", "the tracking match also tries its guess turned by this much; 0: never"),
+    "closure_trigger": fraction("a tracking match scoring under this starts the loop-closure search; 0: off"),
+    "closure_conflict": fraction("share of beams ending in known free space the search also needs"),
+    "closure_min_score": fraction("a closure's pose must score at least this"),
+    "closure_gain": at_least(0.0, "1", "... and this many times the tracking match"),
+    "closure_confirm": at_least(1.0, "scans", "scans in a row a closure must be confirmed on"),
+    "closure_drift": at_least(0.0, "m/m", "a closure moves the match by at most this times the odometry distance"),
+    "closure_reach_rate": at_least(0.0, "m/m", "the search's reach per metre of odometry since the last closure"),
+    "closure_jump": at_least(0.0, "m", "... or by at most this much, whichever is more"),
+    "closure_watch": at_least(0.0, "m", "odometry over which a closure taken is watched"),
+    "closure_undo": fraction("a watched closure is undone where the free-space share averages over this; 1: never"),
+    "closure_undo_fast": fraction("... undone early over this share; 1: never"),
+    "closure_nest": fraction("1 lets a closure be taken inside another's watch, 0 does not"),
+    "closure_undo_end": fraction("a closure still watched at the end is undone over this share; 1: never"),
+    "likelihood_floor": ParamSpec("1", "probability of a beam that hits no wall", low=0.0, high=1.0, low_open=True),
+    "weight_gain": positive("1", "gain of the log-likelihood in the weights"),
+    "resample_threshold": fraction("resample when the effective sample size falls under this times N"),
+    "srr": at_least(0.0, "m/m", "translation noise per metre of translation (GMapping srr)",
+                    algorithms=("gmapping",)),
+    "srt": at_least(0.0, "m/rad", "translation noise per radian of rotation (GMapping srt)",
+                    algorithms=("gmapping",)),
+    "str": at_least(0.0, "rad/m", "rotation noise per metre of translation (GMapping str)", field="str_",
+                    algorithms=("gmapping",)),
+    "stt": at_least(0.0, "rad/rad", "rotation noise per radian of rotation (GMapping stt)",
+                    algorithms=("gmapping",)),
+    "q_linear": positive("m", "std of the constant motion noise in x and y", algorithms=_SRUPF),
+    "q_angular": positive("rad", "std of the constant motion noise in heading", algorithms=_SRUPF),
+    "q_linear_per_m": at_least(0.0, "m/m", "motion noise in x and y per metre travelled", algorithms=_SRUPF),
+    "q_angular_per_rad": at_least(0.0, "rad/rad", "heading noise per radian turned", algorithms=_SRUPF),
+    "q_angular_per_m": at_least(0.0, "rad/m", "heading noise per metre travelled", algorithms=_SRUPF),
+    "ut_alpha": positive("1", "unscented transform: spread of the sigma points", algorithms=_SRUPF),
+    "ut_beta": real("1", "unscented transform: prior knowledge of the distribution (2: Gaussian)",
+                    algorithms=_SRUPF),
+    "ut_kappa": real("1", "unscented transform: secondary scaling", algorithms=_SRUPF),
+}
+"""Every scalar parameter of the grid filters that ``jaxslam run --set NAME=VALUE``
+accepts, by its command-line name (see :class:`GridSlamParams` for the model). Left
+out: the log's beam angles and laser offset, and the vectors ``ellipse_floor``,
+``match_noise``, ``initial_std`` (a calibration file may set those,
+``jaxslam run --params``)."""

@@ -145,14 +145,14 @@ def auto_threads(algorithm: str, particles: int) -> int | None:
 
 def _parse_threads(value: Any, source: str) -> int | None:
     text = str(value).strip().lower()
-    if text in ("all", "0"):
+    if text == "all" or (text == "0" and source == "NPROC"):
         return None
     try:
         count = int(text)
     except ValueError:
         count = -1
     if count < 1:
-        raise ValueError(f"{source} must be a positive thread count or 'all', got {value!r}")
+        raise ValueError(f"{source} must be a positive thread count or 'all' for every core, got {value!r}")
     return count
 
 
@@ -199,7 +199,7 @@ def compile_environment() -> str:
 def set_threads(threads: int | str | None, algorithm: str, particles: int) -> dict[str, Any]:
     """Size XLA's CPU thread pool for this process before its CPU backend starts.
 
-    ``threads``: a count, ``"all"`` (or 0) for XLA's default, or ``None``: then
+    ``threads``: a count, ``"all"`` for XLA's default (every core; 0 is refused), or ``None``: then
     ``$JAXSLAM_THREADS``, else a ``NPROC`` the user set, else :func:`auto_threads` of
     ``algorithm`` (a ``jaxslam run`` name: ``srupf-gm``, ``erb-upf``, ...) and
     ``particles``.
@@ -223,6 +223,8 @@ def set_threads(threads: int | str | None, algorithm: str, particles: int) -> di
         return {"threads": "all" if count is None else count, "source": source}
 
     global _STARTED_WITH
+    if threads is not None:
+        _parse_threads(threads, "threads")  # a bad count is refused even where it could not act
     if xla_bridge.backends_are_initialized():
         return record(thread_pool(), "backend already started")
     if threads is not None:

@@ -23,12 +23,12 @@ name is the SHA-256 of
   the library invalidates every entry);
 * the versions of ``jax`` and ``jaxlib``, the backend platform and its version, the
   devices' kinds, JAX's trace context (x64, matmul precision, ...) and ``XLA_FLAGS``;
-* the runner's tag: the step function and the summary named as module attributes of
-  ``jaxslam`` (see :func:`function_name`), the type and ``repr`` of the static
+* the runner's tag: the step function and the summary named by their module and
+  qualified name (see :func:`function_name`), the type and ``repr`` of the static
   config, whether the carry is donated;
 * the tree structure, shapes, dtypes and weak types of the arguments.
 
-A runner whose step is not a ``jaxslam`` module attribute (a lambda, a closure built by
+A runner whose step is not a named ``jaxslam`` function (a lambda, a closure built by
 a caller, user code) gets no tag and is never stored: its source is not hashed. An
 entry that cannot be read (truncated, from another build) is ignored and replaced.
 Like the compilation cache, the folder holds executable code: keep it private.
@@ -44,7 +44,7 @@ import pickle
 import sys
 from pathlib import Path
 
-__all__ = ["compile_runner", "function_name", "runner_tag", "source_digest"]
+__all__ = ["compile_runner", "function_name", "module_function", "runner_tag", "source_digest"]
 
 SUBFOLDER = "exports"
 
@@ -63,18 +63,45 @@ def source_digest() -> str:
 
 
 def function_name(fn) -> str | None:
-    """``"module:attribute"`` under which ``fn`` itself is a ``jaxslam`` module attribute
-    (the smallest such name, so it does not depend on import order), or None."""
+    """``"module:qualified name"`` of a ``jaxslam`` function, or None.
+
+    The name is ``fn.__module__`` and ``fn.__qualname__``, accepted only when looking it
+    up again (the module in ``sys.modules``, then the attributes along the qualified
+    name) gives ``fn`` itself: a function defined inside another (``<locals>``), a
+    lambda, a copy under a borrowed name or anything outside ``jaxslam`` has none. A
+    :class:`functools.partial` is named by its function and the ``repr`` of its bound
+    arguments, when those are named and print no address. Nothing here iterates
+    ``sys.modules`` or a module's namespace, which another thread may be importing
+    into (the plotting prefetch, :func:`jaxslam.app.outputs.prefetch_plotting`).
+    """
     if fn is None:
         return "None"
-    names = [
-        f"{module_name}:{attribute}"
-        for module_name, module in list(sys.modules.items())
-        if module is not None and (module_name == "jaxslam" or module_name.startswith("jaxslam."))
-        for attribute, value in list(vars(module).items())
-        if value is fn
-    ]
-    return min(names) if names else None
+    if isinstance(fn, functools.partial):
+        inner = function_name(fn.func)
+        if inner is None or inner == "None":
+            return None
+        bound = [repr(arg) for arg in fn.args] + [f"{key}={value!r}" for key, value in fn.keywords.items()]
+        if any(" at 0x" in text for text in bound):
+            return None
+        return f"functools.partial({', '.join([inner, *bound])})"
+    module_name = getattr(fn, "__module__", None)
+    qualname = getattr(fn, "__qualname__", None)
+    if not isinstance(module_name, str) or not isinstance(qualname, str) or "<" in qualname:
+        return None
+    if module_name != "jaxslam" and not module_name.startswith("jaxslam."):
+        return None
+    value = sys.modules.get(module_name)
+    for attribute in qualname.split("."):
+        value = getattr(value, attribute, None)
+    return f"{module_name}:{qualname}" if value is fn and value is not None else None
+
+
+def module_function(fn, module: str, name: str):
+    """``fn``, made by a factory (a decorator) and kept as ``module``'s attribute
+    ``name``, renamed so that :func:`function_name` finds it there: its
+    ``__module__``, ``__qualname__`` and ``__name__`` set. Returns ``fn``."""
+    fn.__module__, fn.__qualname__, fn.__name__ = module, name, name
+    return fn
 
 
 def runner_tag(step_fn, config, summary, donate: bool, kind: str = "chunk_runner") -> tuple | None:

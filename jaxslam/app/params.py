@@ -1,0 +1,143 @@
+"""The parameters ``jaxslam run --set NAME=VALUE`` accepts: names, units, meanings,
+defaults, and the check of a value against its allowed range.
+
+The specifications live beside the filters' ``Params``
+(:data:`jaxslam.grid.types.PARAMETER_SPECS`, :data:`jaxslam.feature.params.PARAMETER_SPECS`);
+this module joins them with each algorithm's defaults for the command line
+(``--set``, ``--params``, ``--list-params``) and for the documentation
+(:func:`parameter_reference`).
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxslam.core.spec import ParamSpec
+from jaxslam.datasets.registry import ALGORITHMS
+
+__all__ = ["ParamRow", "check_value", "defaults", "parameter_reference", "parameter_table", "specs"]
+
+
+class ParamRow(NamedTuple):
+    """One parameter of :func:`parameter_reference`.
+
+    Attributes:
+        name: the name ``--set`` takes.
+        unit: its unit.
+        meaning: what it does.
+        defaults: each algorithm that uses it, with its default written as one types
+            it on the command line (``"0.05"``).
+    """
+
+    name: str
+    unit: str
+    meaning: str
+    defaults: dict[str, str]
+
+
+def specs(algorithm: str) -> dict[str, ParamSpec]:
+    """The parameters ``--set`` accepts for ``algorithm``, by name."""
+    if ALGORITHMS[algorithm] == "landmark":
+        from jaxslam.feature.params import PARAMETER_SPECS
+    else:
+        from jaxslam.grid.types import PARAMETER_SPECS
+    return {name: spec for name, spec in PARAMETER_SPECS.items()
+            if spec.algorithms is None or algorithm in spec.algorithms}
+
+
+def defaults(algorithm: str) -> dict[str, str]:
+    """Each parameter of :func:`specs` with ``algorithm``'s default, as typed."""
+    if ALGORITHMS[algorithm] == "landmark":
+        from jaxslam.feature.params import Params
+
+        values = Params()
+    else:
+        from jaxslam.grid.types import default_params
+
+        values = default_params(np.zeros(1), algorithm=algorithm, dtype=np.float64)
+    return {name: typed(float(getattr(values, spec.field or name))) for name, spec in specs(algorithm).items()}
+
+
+def typed(value: float) -> str:
+    """``value`` as one would type it: the shortest text that reads back as it
+    (``0.05``, ``20``, ``-1e+09``)."""
+    return next(text for text in (f"{value:.{digits}g}" for digits in range(1, 18)) if float(text) == value)
+
+
+def parameter_reference() -> list[ParamRow]:
+    """Every parameter ``jaxslam run --set`` accepts for some algorithm, in the order
+    of the filters' parameter specifications (grid filters first), each with the
+    defaults of the algorithms that use it."""
+    rows: dict[str, ParamRow] = {}
+    for algorithm in ("srupf-gm", "srupf-gm-npc", "gmapping", "erb-upf", "rb-upf"):
+        values = defaults(algorithm)
+        for name, spec in specs(algorithm).items():
+            row = rows.setdefault(name, ParamRow(name, spec.unit, spec.meaning, {}))
+            row.defaults[algorithm] = values[name]
+    return list(rows.values())
+
+
+def parameter_table(algorithm: str) -> str:
+    """``--list-params``: a table of name, default as typed, unit and meaning of every
+    parameter ``--set`` accepts for ``algorithm``."""
+    values, table = defaults(algorithm), specs(algorithm)
+    rows = [("name", "default", "unit", "meaning")]
+    rows += [(name, values[name], spec.unit, f"{spec.meaning} ({spec.allowed()})") for name, spec in table.items()]
+    widths = [max(len(row[i]) for row in rows) for i in range(3)]
+    return "\n".join(f"{a:<{widths[0]}}  {b:>{widths[1]}}  {c:<{widths[2]}}  {d}" for a, b, c, d in rows)
+
+
+def check_value(algorithm: str, name: str, value, origin: str = "--set") -> str:
+    """The ``Params`` field that ``name`` sets, after checking ``value``; a ``ValueError``
+    naming ``origin``, the parameter and the value otherwise. ``value``: a number, or a
+    list of numbers (from a calibration file) for a vector parameter."""
+    table = specs(algorithm)
+    # the field's own name (``str_``, as in a calibration file or an older run.json) too
+    spec = table.get(name) or next((s for s in table.values() if s.field == name), None)
+    if isinstance(value, list):
+        return _check_vector(algorithm, name, value, origin)
+    if spec is None:
+        close = difflib.get_close_matches(name, list(table), n=1)
+        raise ValueError(f"{origin} {name}={value:g}: {algorithm} has no parameter {name!r}"
+                         f"{_unused_hint(algorithm, name)}{f'; did you mean {close[0]!r}?' if close else ''} "
+                         f"Its parameters: {', '.join(table)} (`jaxslam run --list-params --algorithm {algorithm}`)")
+    problem = spec.problem(float(value))
+    if problem is not None:
+        raise ValueError(f"{origin} {name}={value:g}: {name} ({spec.unit}, {spec.meaning}) {problem}")
+    return spec.field or name
+
+
+def _unused_hint(algorithm: str, name: str) -> str:
+    from jaxslam.feature.params import PARAMETER_SPECS as LANDMARK
+    from jaxslam.grid.types import PARAMETER_SPECS as GRID
+
+    spec = GRID.get(name) or LANDMARK.get(name)
+    if spec is not None and spec.algorithms:
+        return f" (it is a parameter of {', '.join(spec.algorithms)})"
+    if spec is not None:
+        return " (it is a parameter of the " + ("grid" if name in GRID else "landmark") + " filters)"
+    for other, other_spec in {**GRID, **LANDMARK}.items():
+        if other_spec.field == name:
+            return f" (its name on the command line is {other!r})"
+    return ""
+
+
+VECTORS = {"ellipse_floor": 3, "match_noise": 3, "initial_std": 3}
+"""Vector parameters of the grid filters (standard deviations, finite and >= 0) that a
+calibration file (``--params``) may set, with their lengths."""
+
+
+def _check_vector(algorithm: str, name: str, value: list, origin: str) -> str:
+    size = VECTORS.get(name) if ALGORITHMS[algorithm] == "laser" else None
+    if size is None:
+        raise ValueError(f"{origin} {name}: {algorithm} has no vector parameter {name!r}")
+    if len(value) != size:
+        raise ValueError(f"{origin} {name}: expected {size} number(s), got a list of {len(value)}")
+    for i, item in enumerate(value):
+        if not (math.isfinite(float(item)) and float(item) >= 0.0):
+            raise ValueError(f"{origin} {name}[{i}]={float(item):g}: must be finite and >= 0")
+    return name
