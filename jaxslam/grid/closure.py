@@ -506,7 +506,7 @@ def watch_closure(read: CellReader, frame, matched: Array, local_points: Array, 
                  refused, undo, held[3] > 0)
 
 
-def closure_carry(dtype, config) -> dict:
+def closure_carry(dtype) -> dict:
     """The keys :func:`closure_phases` adds to the tracking's carry, empty."""
     return {"watch": Watch.empty(dtype), "followed": jnp.zeros((3,), dtype), "followed_score": jnp.zeros((), dtype),
             "travelled": jnp.zeros((), dtype)}

@@ -77,15 +77,16 @@ def hill_climb(
     score_fn: ScoreFn,
     center: Array,
     basis: Array,
-    iterations: int,
+    iterations: int | Array,
     bound: EllipseBound | None = None,
     initial_step: Array | float = 1.0,
 ) -> tuple[Array, Array, Array]:
     """Hill climbing with step halving in ``u``, ``x = center + basis @ u``.
 
-    Each iteration scores the six moves ``u +- step e_i``; the best replaces ``u`` if
-    it beats the current score, else ``step`` halves. With ``bound``, candidates
-    outside the ellipse are skipped.
+    The start is scored first (in the loop's first pass, so that the program holds one
+    score kernel); then each iteration scores the six moves ``u +- step e_i``; the best
+    replaces ``u`` if it beats the current score, else ``step`` halves. With ``bound``,
+    candidates outside the ellipse are skipped. ``iterations`` may be traced.
 
     Returns:
         ``(pose (3,), score (), u (3,))``.

@@ -181,7 +181,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     carry = {"start": guess, "matched": guess, "score": jnp.full((), -jnp.inf, dtype), "origin": guess,
              "searching": jnp.asarray(False), "candidates": jnp.zeros((lanes, 3), dtype),
              "found": jnp.zeros((), dtype), "found_pose": jnp.zeros((3,), dtype),
-             **recovery_carry(dtype), **closure_carry(dtype, config)}
+             **recovery_carry(dtype), **closure_carry(dtype)}
     # Every climb of the scan is a phase of one climb in the program (jaxslam.grid.climbs).
     phases = match_phases(guess, retry, jnp.max(turned_scores), config)
     if config.recover_radius > 0:  # an odometry glitch: a wide match where this one is refused
