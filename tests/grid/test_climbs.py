@@ -4,8 +4,6 @@ coarse-to-fine match) against the same climbs written out, bit for bit."""
 
 from types import SimpleNamespace
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -159,3 +157,31 @@ def test_coarse_to_fine_is_the_coarse_stage_then_the_matcher(matcher):
         for value, expected in zip(got, want):
             np.testing.assert_array_equal(np.asarray(value), np.asarray(expected))
         assert np.hypot(*(np.asarray(got[0]) - true_pose)[:2]) < np.hypot(*offset[:2])  # it matched
+
+
+def test_the_default_programs_hold_the_score_kernel_a_few_times(sim, monkeypatch):
+    """Every call of the map evidence while the per-scan step is traced is one copy of
+    the score kernel in the compiled program. With the climbs written once, SRUPF-GM's
+    default step (tracking with recovery and loop closure, the keyframe's coarse-to-fine
+    match) holds six: per map read, the climb, the turned guesses and the curvature test
+    of the tracking; the climb, the curvature test and the likelihood of the keyframe.
+    Written out climb by climb it held eighteen. The GMapping-style filter's default step
+    holds six as well: the tracking's three, the keyframe's climb and its likelihood at
+    the start and at the match."""
+    import jaxslam.grid.score as score
+    from jaxslam.grid import gmapping, srupf
+    from jaxslam.grid.experiment import make_config
+    from tests.grid.sim_state import state_and_scans
+
+    calls = []
+    evidence = score.evidence
+    monkeypatch.setattr(score, "evidence", lambda *a, **k: calls.append(1) or evidence(*a, **k))
+    with jax.enable_x64(True):
+        state, scans, params, config = state_and_scans(sim)
+        assert config.closure and config.recover_radius > 0 and config.coarse_iterations > 0
+        gmapping_config = make_config("gmapping", 2, config.layout, config.num_beams, config.max_points)
+        for module, cfg, copies in ((srupf, config, 6), (gmapping, gmapping_config, 6)):
+            calls.clear()
+            jax.eval_shape(lambda s: module.scan_step(jax.random.PRNGKey(0), s, jnp.zeros(3), scans[3], params, cfg),
+                           state)
+            assert len(calls) == copies, (module.__name__, len(calls))
