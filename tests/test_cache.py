@@ -273,3 +273,28 @@ def test_runner_tag_only_for_library_functions():
     assert runner_tag(lambda *a: a, config, None, True) is None
     assert runner_tag(srupf.step, config, lambda info: info, True) is None
     assert runner_tag(srupf.step, object(), None, True) is None  # repr holds an address
+
+
+def test_compile_counter_times_tracing_lowering_and_xla_apart():
+    """:class:`CompileCounter` reports tracing, lowering and XLA's compilation apart; a
+    jit traced inside another's trace is counted once (the union of the spans), so
+    tracing never exceeds the block's wall time."""
+    import time
+
+    import jax
+    import jax.numpy as jnp
+
+    from jaxslam.runtime.cache import CompileCounter, _covered
+
+    assert _covered([]) == 0.0
+    assert _covered([(0.0, 4.0), (1.0, 2.0), (3.0, 5.0), (7.0, 8.0)]) == pytest.approx(6.0)
+
+    inner = jax.jit(lambda x: jnp.sin(x) * 2.0)
+    started = time.perf_counter()
+    with CompileCounter() as counter:
+        jax.jit(lambda x: inner(x) + inner(x + 1.0))(jnp.arange(7.0)).block_until_ready()
+    wall = time.perf_counter() - started
+    summary = counter.as_dict()
+    assert summary["compiled"] >= 1 and summary["seconds"] > 0
+    assert 0 < summary["trace_s"] <= wall and 0 < summary["lower_s"] <= wall
+    assert summary["trace_s"] + summary["lower_s"] + summary["seconds"] <= wall + 1e-3

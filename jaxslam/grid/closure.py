@@ -46,7 +46,7 @@ A candidate is *held* (its world correction :math:`C = x^* \ominus_w x_0`, that 
 scans that follow: each of them climbs from :math:`C \oplus x_0'` (its own local
 match moved by the held correction) and must pass the same tests. After
 ``closure_confirm`` (3) wins in a row the candidate replaces the local match; one loss
-drops it (:func:`close_loop`). The bound on the jump is the drift the tracking can
+drops it (:func:`closure_phases`). The bound on the jump is the drift the tracking can
 have gathered since the last closure, :math:`\beta` = 0.5 m per metre of odometry,
 and at least :math:`j` = 0.5 m: right after a closure the robot is on the old map,
 so a second jump of metres within a few metres of travel is an alias (a corridor's
@@ -223,7 +223,7 @@ last closure exceeds ``R``, a second coarse stage (``config.closure_radius_far``
 10 m) scores the candidates of the near search's square and those within
 :math:`\min(\gamma d, R_{far})` of :math:`x_0` (a disc: the drift it bounds has no
 preferred axis); both stages feed one refinement (:func:`coarse_candidates`,
-:func:`refine_best`). :math:`\gamma` = 0.02 m per m bounds the drift met at Killian's
+:func:`closure_phases`). :math:`\gamma` = 0.02 m per m bounds the drift met at Killian's
 closure near scan 15770 after some 480 m without one: 1.0-7.5 m over session 44's
 ten one-thread seeds (the median error of the relations into it, before the jump); the
 seeds with more than 6 m there had missed it. Below :math:`R / \gamma` = 300 m the far
@@ -272,6 +272,7 @@ an undone closure, the judgment of a closure still watched at the end) is
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -280,7 +281,7 @@ from jax import Array
 
 from jaxslam.core import se2
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.matching import hill_climb_match
+from jaxslam.grid.climbs import Phase, best_of
 from jaxslam.grid.score import cell_coords
 
 POOL = 2
@@ -308,7 +309,7 @@ FAST_SHARE = 0.2
 at least two scans watched: a robot standing still repeats one scan's conflict)."""
 
 MEMORY = 15
-"""Length of the state's ``closure_memory`` (:func:`close_loop`)."""
+"""Length of the state's ``closure_memory`` (:func:`closure_phases`)."""
 
 
 def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation) -> tuple[Array, Array]:
@@ -410,7 +411,7 @@ def coarse_candidates(read: CellReader, frame, local_points: Array, weights: Arr
     ``radius`` (static, m; default ``config.closure_radius``) sizes the candidate grid
     and the window; ``reach`` (traced, m), where given, keeps the candidates of the near
     search's square (``config.closure_radius`` on each axis) and those whose shift lies
-    within ``reach`` (the far search, :func:`close_loop`)."""
+    within ``reach`` (the far search, :func:`closure_phases`)."""
     dtype = start.dtype
     radius = float(config.closure_radius) if radius is None else float(radius)
     cell = frame.resolution * POOL
@@ -439,22 +440,10 @@ def coarse_candidates(read: CellReader, frame, local_points: Array, weights: Arr
     return jnp.stack([start[0] + shifts[xi], start[1] + shifts[yi], se2.wrap_angle(start[2] + turns[chosen])], -1)
 
 
-def refine_best(score_fn, candidates: Array, params, config) -> tuple[Array, Array]:
-    """The best of ``candidates (K, 3)`` after GMapping's hill climb on the full map:
-    ``(pose (3,), score ())``, the score a raw sum over the beams like ``score_fn``'s."""
-    refined, refined_scores = jax.vmap(
-        lambda c: hill_climb_match(score_fn, c, None, params, config.match_iterations)
-    )(candidates)
-    best = jnp.argmax(refined_scores)
-    return refined[best], refined_scores[best]
-
-
-def closure_search(score_fn, read: CellReader, frame, local_points: Array, weights: Array, laser_offset: Array,
-                   start: Array, params, config) -> tuple[Array, Array]:
-    """The best refined candidate within ``config.closure_radius`` of ``start``:
-    ``(pose (3,), score ())`` (:func:`coarse_candidates`, then :func:`refine_best`)."""
-    candidates = coarse_candidates(read, frame, local_points, weights, laser_offset, start, params, config)
-    return refine_best(score_fn, candidates, params, config)
+def refine_count(config) -> int:
+    """How many candidates :func:`coarse_candidates` returns (and the hill climb refines)."""
+    k = max(int(round(float(config.closure_turn) / TURN_STEP)), 0)
+    return min(REFINE, 2 * k + 1)
 
 
 def conflict_fraction(read: CellReader, frame, pose: Array, local_points: Array, weights: Array,
@@ -472,11 +461,64 @@ def conflict_fraction(read: CellReader, frame, pose: Array, local_points: Array,
     return jnp.sum(jnp.where((jnp.asarray(weights) > 0) & (highest < 0), 1.0, 0.0).astype(dtype)) / count
 
 
-def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: Array, laser_offset: Array,
-               matched: Array, score: Array, count: Array, memory: Array, params,
-               config) -> tuple[Array, Array, Array, Array, Array, Array]:
-    r"""The local match ``(matched, score)`` (raw score over ``count`` beams) or the
-    closure that replaces it: ``(pose, score, closed, undo, conflict, memory)``
+class Watch(NamedTuple):
+    """The closure memory read for one scan, before its climbs (:func:`watch_closure`)."""
+
+    conflict: Array  # () conflict_fraction at the local match
+    held: Array  # (4,) the held candidate's correction C and its wins
+    travelled: Array  # () odometry since the last closure
+    applied: Array  # (3,) the last closure's correction A
+    watching: Array  # () bool, still watched after this scan
+    conflict_sum: Array  # ()
+    conflict_count: Array  # ()
+    before: Array  # () the distance before the last closure
+    refused: Array  # () bool, its correction refused (undone)
+    undo: Array  # () bool, undo it on this scan
+    holding: Array  # () bool, a candidate is held
+
+    @staticmethod
+    def empty(dtype) -> "Watch":
+        zero, no = jnp.zeros((), dtype), jnp.asarray(False)
+        return Watch(zero, jnp.zeros((4,), dtype), zero, jnp.zeros((3,), dtype), no, zero, zero, zero, no, no, no)
+
+
+def watch_closure(read: CellReader, frame, matched: Array, local_points: Array, weights: Array,
+                  laser_offset: Array, count: Array, memory: Array, params) -> Watch:
+    """The watch of the last closure and the held candidate, read from ``memory`` with
+    the local match's conflict (see :func:`closure_phases`)."""
+    dtype = matched.dtype
+    conflict = conflict_fraction(read, frame, matched, local_points, weights, laser_offset, count)
+    held = memory[:4]
+    travelled = memory[4]
+    applied = memory[5:8]
+    watching = memory[8] > 0
+    conflict_sum = memory[9] + jnp.where(watching, conflict, 0.0)
+    conflict_count = memory[10] + jnp.where(watching, 1.0, 0.0)
+    before = memory[11]
+    refused = memory[8] < 0
+    undo = watching & (
+        ((travelled >= jnp.asarray(params.closure_watch, dtype))
+         & (conflict_sum > jnp.asarray(params.closure_undo, dtype) * conflict_count))
+        | ((conflict_count >= 2) & (travelled >= FAST_SHARE * jnp.asarray(params.closure_watch, dtype))
+           & (conflict_sum > jnp.asarray(params.closure_undo_fast, dtype) * conflict_count)))
+    watching = watching & ~undo & (travelled < jnp.asarray(params.closure_watch, dtype))
+    return Watch(conflict, held, travelled, applied.astype(dtype), watching, conflict_sum, conflict_count, before,
+                 refused, undo, held[3] > 0)
+
+
+def closure_carry(dtype) -> dict:
+    """The keys :func:`closure_phases` adds to the tracking's carry, empty."""
+    return {"watch": Watch.empty(dtype), "followed": jnp.zeros((3,), dtype), "followed_score": jnp.zeros((), dtype),
+            "travelled": jnp.zeros((), dtype)}
+
+
+def closure_phases(read: CellReader, frame, local_points: Array, weights: Array, laser_offset: Array,
+                   count: Array, memory: Array, params, config) -> list[Phase]:
+    r"""The climbs of the loop-closure search for the local match in ``carry``
+    (``matched``, ``score``: raw score over ``count`` beams), as phases of the
+    tracking's one climb (:mod:`jaxslam.grid.climbs`); :func:`closure_outcome` then
+    gives the local match or the closure that replaces it, ``(pose, score, closed,
+    undo, conflict, memory)``
     (``undo (4,)``: zeros, or where the pose is the last closure taken back, which the
     tracking applies whatever its score, the number of scans since that closure was
     taken and its correction :math:`A`, for :func:`jaxslam.grid.undone_closures.take_back`).
@@ -489,7 +531,8 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     :func:`jaxslam.grid.tracking.track`), whether it is still watched, the sum and
     count of its scans' conflicts, the distance before it, and the correction the
     search found for it (:func:`record_applied`). ``conflict`` is
-    :func:`conflict_fraction` at the local match. Without a held
+    :func:`conflict_fraction` at the local match. The phases: the undo's climb, the
+    held candidate's, and one climb from each of the coarse stage's candidates. Without a held
     candidate, a match under the trigger starts the search; with one, the hill climb
     refines :math:`C \oplus x_0` instead. The candidate :math:`x` wins a scan when
 
@@ -509,51 +552,73 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     lies within ``closure_jump`` of the one the search found for it are refused from
     then on (the same alias would win again).
     """
-    dtype = matched.dtype
-    conflict = conflict_fraction(read, frame, matched, local_points, weights, laser_offset, count)
-    held = memory[:4]
-    travelled = memory[4]
-    applied = memory[5:8]
-    watching = memory[8] > 0
-    conflict_sum = memory[9] + jnp.where(watching, conflict, 0.0)
-    conflict_count = memory[10] + jnp.where(watching, 1.0, 0.0)
-    before = memory[11]
-    refused = memory[8] < 0
-    undo = watching & (
-        ((travelled >= jnp.asarray(params.closure_watch, dtype))
-         & (conflict_sum > jnp.asarray(params.closure_undo, dtype) * conflict_count))
-        | ((conflict_count >= 2) & (travelled >= FAST_SHARE * jnp.asarray(params.closure_watch, dtype))
-           & (conflict_sum > jnp.asarray(params.closure_undo_fast, dtype) * conflict_count)))
-    watching = watching & ~undo & (travelled < jnp.asarray(params.closure_watch, dtype))
+    dtype = memory.dtype
+    lanes = refine_count(config)
 
-    holding = held[3] > 0
-    matched, score, followed, followed_score = undo_and_follow(
-        score_fn, matched, score, undo, holding, applied.astype(dtype), held[:3].astype(dtype), params, config)
-    travelled = jnp.where(undo, travelled + before, travelled)
-    # No search while the last closure is watched (unless ``closure_nest``): a closure
-    # taken inside another's watch would restart it, and the first would never be judged.
-    nest_ok = ~watching | (jnp.asarray(params.closure_nest, dtype) > 0)
-    triggered = ~undo & ~holding & nest_ok & (score / count < jnp.asarray(params.closure_trigger, dtype)) & (
-        conflict >= jnp.asarray(params.closure_conflict, dtype))
+    def undo_prepare(lane, carry):
+        watch = watch_closure(read, frame, carry["matched"], local_points, weights, laser_offset, count, memory, params)
+        return {**carry, "watch": watch}, watch.undo, se2.compose(se2.inverse(watch.applied), carry["matched"])
 
-    def coarse(radius=None, reach=None):
-        return coarse_candidates(read, frame, local_points, weights, laser_offset, matched, params, config,
-                                 radius=radius, reach=reach)
+    def undo_take(lane, carry, active, pose, score):
+        return {**carry, "matched": jnp.where(active, pose, carry["matched"]),
+                "score": jnp.where(active, score, carry["score"])}
 
-    def wide():  # the near coarse stage, or the far one where the drift bound reaches past it; one refinement
-        far_radius = float(config.closure_radius_far)
-        if far_radius <= float(config.closure_radius):
-            candidates = coarse()
-        else:
+    def follow_prepare(lane, carry):
+        watch = carry["watch"]
+        return carry, watch.holding, se2.compose(watch.held[:3].astype(dtype), carry["matched"])
+
+    def follow_take(lane, carry, active, pose, score):
+        return {**carry, "followed": jnp.where(active, pose, carry["matched"]),
+                "followed_score": jnp.where(active, score, carry["score"])}
+
+    def search_prepare(lane, carry):
+        watch, matched, score = carry["watch"], carry["matched"], carry["score"]
+        travelled = jnp.where(watch.undo, watch.travelled + watch.before, watch.travelled)
+        # No search while the last closure is watched (unless ``closure_nest``): a closure
+        # taken inside another's watch would restart it, and the first would never be judged.
+        nest_ok = ~watch.watching | (jnp.asarray(params.closure_nest, dtype) > 0)
+        triggered = ~watch.undo & ~watch.holding & nest_ok & (
+            score / count < jnp.asarray(params.closure_trigger, dtype)) & (
+            watch.conflict >= jnp.asarray(params.closure_conflict, dtype))
+
+        def coarse(radius=None, reach=None):
+            return coarse_candidates(read, frame, local_points, weights, laser_offset, matched, params, config,
+                                     radius=radius, reach=reach)
+
+        def wide():  # the near coarse stage, or the far one where the drift bound reaches past it
+            far_radius = float(config.closure_radius_far)
+            if far_radius <= float(config.closure_radius):
+                return coarse()
             reach = jnp.minimum(jnp.asarray(params.closure_reach_rate, dtype) * travelled, far_radius)
-            candidates = jax.lax.cond(reach > float(config.closure_radius), lambda: coarse(far_radius, reach), coarse)
-        return refine_best(score_fn, candidates, params, config)
+            return jax.lax.cond(reach > float(config.closure_radius), lambda: coarse(far_radius, reach), coarse)
 
-    pose, found = jax.lax.cond(
-        holding,
-        lambda: (followed, followed_score),
-        lambda: jax.lax.cond(triggered, wide, lambda: (matched, score)),
-    )
+        candidates = jax.lax.cond(triggered, wide, lambda: jnp.zeros((lanes, 3), dtype))
+        carry = {**carry, "travelled": travelled, "searching": triggered, "candidates": candidates,
+                 "found": jnp.full((), -jnp.inf, dtype), "found_pose": candidates[0]}
+        return carry, triggered, candidates[0]
+
+    def next_prepare(lane, carry):
+        return carry, carry["searching"], carry["candidates"][lane + 1]
+
+    def search_take(lane, carry, active, pose, score):
+        return best_of(carry, active, pose, score)
+
+    return [Phase(1, False, undo_prepare, undo_take), Phase(1, False, follow_prepare, follow_take),
+            Phase(1, False, search_prepare, search_take), Phase(lanes - 1, False, next_prepare, search_take)]
+
+
+def closure_outcome(carry: dict, count: Array, memory: Array,
+                    params) -> tuple[Array, Array, Array, Array, Array, Array]:
+    """The local match after :func:`closure_phases` (``carry``), or the closure that
+    replaces it: ``(pose, score, closed, undo, conflict, memory)`` (see
+    :func:`closure_phases`)."""
+    watch, matched, score, travelled = carry["watch"], carry["matched"], carry["score"], carry["travelled"]
+    dtype = matched.dtype
+    holding, triggered, undo = watch.holding, carry["searching"], watch.undo
+    pose = jnp.where(holding, carry["followed"], jnp.where(triggered, carry["found_pose"], matched))
+    found = jnp.where(holding, carry["followed_score"], jnp.where(triggered, carry["found"], score))
+    held, applied, watching = watch.held, watch.applied, watch.watching
+    conflict_sum, conflict_count, before, refused = watch.conflict_sum, watch.conflict_count, watch.before, watch.refused
     correction = se2.compose(pose, se2.inverse(matched))
     jump = jnp.asarray(params.closure_jump, dtype)
     candidate = memory[12:15]
@@ -583,38 +648,7 @@ def close_loop(score_fn, read: CellReader, frame, local_points: Array, weights: 
     # what an undo takes back, for the path reported
     # (:func:`jaxslam.grid.undone_closures.take_back`): the scans since the closure, A
     taken_back = jnp.where(undo, jnp.concatenate([conflict_count[None], applied.astype(dtype)]), jnp.zeros((4,), dtype))
-    return jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, taken_back, conflict, memory
-
-
-def undo_and_follow(score_fn, matched: Array, score: Array, undo: Array, holding: Array, applied: Array,
-                    held: Array, params, config) -> tuple[Array, Array, Array, Array]:
-    r"""The two climbs of :func:`close_loop`, in one pass each of one climb (the program
-    holds the climb once): where ``undo``, the local match climbs again from
-    :math:`A^{-1} \oplus x_0` (``applied`` :math:`A`); then, where ``holding``, the held
-    candidate :math:`C \oplus x_0` (``held`` :math:`C`) climbs from the match after that.
-    Returns ``(matched, score, followed, followed_score)``: the match after the undo, and
-    the followed candidate (the match itself where nothing is held).
-
-    Each copy of a climb in the chunk runner's program is a score kernel of its own for
-    XLA to compile: the two climbs as two branches took about 1.6 s more XLA
-    compilation (13.6 against 12.0 s on one core, Intel's chunk runner, six alternating
-    cold processes each), for the same runs bit for bit (``docs/results.md``, speed,
-    session 70)."""
-
-    def one(i, carry):
-        matched, score, followed, followed_score = carry
-        first = i == 0
-        start = jnp.where(first, se2.compose(se2.inverse(applied), matched), se2.compose(held, matched))
-
-        def climbed():
-            pose, value = hill_climb_match(score_fn, start, None, params, config.match_iterations)
-            return (jnp.where(first, pose, matched), jnp.where(first, value, score),
-                    jnp.where(first, followed, pose), jnp.where(first, followed_score, value))
-
-        return jax.lax.cond(jnp.where(first, undo, holding), climbed, lambda: carry)
-
-    matched, score, followed, followed_score = jax.lax.fori_loop(0, 2, one, (matched, score, matched, score))
-    return matched, score, jnp.where(holding, followed, matched), jnp.where(holding, followed_score, score)
+    return jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, taken_back, watch.conflict, memory
 
 
 def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
@@ -626,6 +660,6 @@ def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
 
 __all__ = [
     "BEAM_STRIDE", "FAST_SHARE", "MEMORY", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
-    "candidate_scores", "close_loop", "closure_search", "coarse_candidates", "coarse_window", "conflict_fraction",
-    "record_applied", "refine_best", "undo_and_follow", "window_half",
+    "Watch", "candidate_scores", "closure_carry", "closure_outcome", "closure_phases", "coarse_candidates",
+    "coarse_window", "conflict_fraction", "record_applied", "refine_count", "watch_closure", "window_half",
 ]

@@ -33,7 +33,7 @@ from jaxslam.core.resampling import effective_sample_size, normalize_log_weights
 from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.closure import MEMORY
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
-from jaxslam.grid.matching import gmapping_basis, hill_climb
+from jaxslam.grid.matching import Climb, EllipseBound, climbs_in_turn, get_matcher, gmapping_basis, hill_climb, search_bound
 from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn
 from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
 from jaxslam.grid.update import update_paged
@@ -86,6 +86,58 @@ def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: Gr
                          config.free_check)
     moved, _, _ = hill_climb(wide, pose, gmapping_basis(params, pose.dtype), config.coarse_iterations, bound)
     return moved
+
+
+def coarse_to_fine(read, local_points: Array, mask: Array, start: Array, pose_sqrt_cov: Array,
+                   params: GridSlamParams, config: GridSlamConfig, coarse_centre: Array,
+                   prior_mean: Array | None = None) -> tuple[Array, Array]:
+    """A keyframe's match: ``config.matcher`` from :func:`coarse_start` (whose climb
+    keeps to :func:`jaxslam.grid.matching.search_bound` around ``coarse_centre`` at
+    ``coarse_radius``), ``(pose (3,), score ())``, the score a raw sum over the beams.
+
+    Where both are hill climbs (the ``"hill"`` and ``"ellipse"`` matchers without a
+    gradient refinement), they run as two passes of one climb
+    (:func:`jaxslam.grid.matching.climbs_in_turn`), so the program holds the score
+    kernel once for both; the poses are the same bit for bit.
+    """
+    model = score_model(params)
+    score_fn = make_score_fn(read, local_points, mask, params.laser_offset, config.layout, model,
+                             config.score_kernel, config.free_check)
+    coarse_bound = search_bound(config.matcher, coarse_centre, pose_sqrt_cov, params, params.coarse_radius)
+    if not (config.coarse_iterations and not config.refine_steps and config.matcher in ("hill", "ellipse")):
+        begin = coarse_start(read, local_points, mask, start, params, config, coarse_bound)
+        return get_matcher(config.matcher)(score_fn, begin, pose_sqrt_cov, params, config.match_iterations,
+                                           config.refine_steps, prior_mean=prior_mean)
+    dtype = start.dtype
+    coarse_basis = gmapping_basis(params, dtype)
+    fine_basis, fine_step = coarse_basis, jnp.ones((), dtype)
+    if coarse_bound is not None:  # ellipse_match's steps: the ellipse's marginal deviations
+        factor = coarse_bound.sqrt_cov
+        fine_basis = jnp.diag(jnp.sqrt(jnp.sum(factor * factor, -1)))
+        fine_step = jnp.asarray(params.ellipse_step, dtype)
+
+    def score_at(poses, sigma):
+        return make_score_fn(read, local_points, mask, params.laser_offset, config.layout,
+                             model._replace(sigma=sigma), config.score_kernel, config.free_check)(poses)
+
+    def prepare(i, carry):
+        coarse = i == 0
+        begin = jnp.where(coarse, start, carry[0])
+        bound = None
+        if coarse_bound is not None:
+            centre = jnp.where(coarse, coarse_centre, begin if prior_mean is None else prior_mean)
+            radius = jnp.where(coarse, coarse_bound.radius, jnp.asarray(params.ellipse_radius, dtype))
+            bound = EllipseBound(centre, coarse_bound.sqrt_cov, radius)
+        return carry, Climb(
+            jnp.asarray(True), begin, jnp.where(coarse, coarse_basis, fine_basis),
+            jnp.where(coarse, config.coarse_iterations, config.match_iterations),
+            jnp.where(coarse, jnp.asarray(params.coarse_sigma, dtype), jnp.asarray(model.sigma, dtype)),
+            jnp.where(coarse, jnp.ones((), dtype), fine_step), bound)
+
+    def take(i, carry, climb, pose, score):
+        return pose, score
+
+    return climbs_in_turn(score_at, 2, prepare, take, (start, jnp.zeros((), dtype)))
 
 
 def usable_range(params: GridSlamParams, config: GridSlamConfig) -> Array:
@@ -306,6 +358,7 @@ def reset_status(state: GridSlamState) -> GridSlamState:
 
 __all__ = [
     "beam_weights",
+    "coarse_to_fine",
     "best_particle",
     "empty_info",
     "finish_step",

@@ -28,7 +28,7 @@ from jax import Array
 from jaxslam.runtime.driver import scan_runner
 from jaxslam.runtime.executables import module_function
 from jaxslam.grid.filter import (
-    coarse_start,
+    coarse_to_fine,
     finish_step,
     guard,
     init,
@@ -47,7 +47,6 @@ from jaxslam.grid.types import (
     noise_scale_of,
 )
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.matching import get_matcher, search_bound
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
 from jaxslam.grid.tracking import constrained_pose, per_scan
 from jaxslam.models.odometry import sample_gmapping
@@ -73,10 +72,7 @@ def correct_pose(
     score_fn = make_score_fn(
         read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
-    matcher = get_matcher(config.matcher)
-    start = coarse_start(read, local_points, mask, pose, params, config,
-                         search_bound(config.matcher, pose, pose_sqrt_cov, params, params.coarse_radius))
-    best, best_score = matcher(score_fn, start, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
+    best, best_score = coarse_to_fine(read, local_points, mask, pose, pose_sqrt_cov, params, config, pose)
     count = jnp.maximum(jnp.sum(mask), 1).astype(pose.dtype)
     if config.constrain_matches:
         best = constrained_pose(score_fn, best, pose, best_score, count, params)

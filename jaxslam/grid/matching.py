@@ -28,8 +28,10 @@ coordinate :math:`u` that starts at 0:
   (the bilinear map is differentiable almost everywhere), keeping the best pose seen.
 * ``refine_steps > 0`` follows either search with the gradient refinement.
 
-A loop of ``iterations`` evaluates 6 candidates per iteration, so the cost per
-particle is ``6 * iterations + 1`` scans, fixed (static shapes under ``vmap``).
+A climb of ``iterations`` evaluates 6 candidates per iteration, and 6 copies of the
+start first (one score kernel in the program for both), so the cost per particle is
+``6 * (iterations + 1)`` scans, fixed (static shapes under ``vmap``). Climbs that run
+one after another share one kernel through :func:`climbs_in_turn`.
 """
 
 from __future__ import annotations
@@ -75,15 +77,16 @@ def hill_climb(
     score_fn: ScoreFn,
     center: Array,
     basis: Array,
-    iterations: int,
+    iterations: int | Array,
     bound: EllipseBound | None = None,
     initial_step: Array | float = 1.0,
 ) -> tuple[Array, Array, Array]:
     """Hill climbing with step halving in ``u``, ``x = center + basis @ u``.
 
-    Each iteration scores the six moves ``u +- step e_i``; the best replaces ``u`` if
-    it beats the current score, else ``step`` halves. With ``bound``, candidates
-    outside the ellipse are skipped.
+    The start is scored first (in the loop's first pass, so that the program holds one
+    score kernel); then each iteration scores the six moves ``u +- step e_i``; the best
+    replaces ``u`` if it beats the current score, else ``step`` halves. With ``bound``,
+    candidates outside the ellipse are skipped. ``iterations`` may be traced.
 
     Returns:
         ``(pose (3,), score (), u (3,))``.
@@ -99,25 +102,78 @@ def hill_climb(
         a = jax.scipy.linalg.solve_triangular(bound.sqrt_cov, offset, lower=True)
         m = jax.scipy.linalg.solve_triangular(bound.sqrt_cov, basis, lower=True)
         radius_sq = jnp.asarray(bound.radius, dtype) ** 2
-    s0 = score_fn(center[None])[0]
 
-    def body(_, carry):
+    def body(i, carry):
+        # Pass 0 scores the start itself (six copies of it, the first taken): the
+        # program holds one score kernel per climb, not one for the start and one for
+        # the moves.
         u, score, step = carry
+        first = i == 0
         cand_u = u + step * moves
-        scores = score_fn(_poses(center, basis, cand_u))
+        scores = score_fn(jnp.where(first, jnp.broadcast_to(center, (6, 3)), _poses(center, basis, cand_u)))
         if bound is not None:
             w = a + cand_u @ m.T
-            scores = jnp.where(jnp.sum(w * w, -1) <= radius_sq, scores, -jnp.inf)
+            scores = jnp.where(first | (jnp.sum(w * w, -1) <= radius_sq), scores, -jnp.inf)
         best = jnp.argmax(scores)
-        better = scores[best] > score
+        better = ~first & (scores[best] > score)
         u = jnp.where(better, cand_u[best], u)
-        score = jnp.where(better, scores[best], score)
-        step = jnp.where(better, step, 0.5 * step)
+        score = jnp.where(first, scores[0], jnp.where(better, scores[best], score))
+        step = jnp.where(better | first, step, 0.5 * step)
         return u, score, step
 
     step0 = jnp.asarray(initial_step, dtype)
-    u, score, _ = jax.lax.fori_loop(0, iterations, body, (u0, s0, step0))
+    u, score, _ = jax.lax.fori_loop(0, iterations + 1, body, (u0, jnp.full((), -jnp.inf, dtype), step0))
     return _poses(center, basis, u), score, u
+
+
+class Climb(NamedTuple):
+    """One hill climb of :func:`climbs_in_turn`: whether it runs, where it starts, its
+    move basis, iterations, the width of the score kernel and the first step."""
+
+    active: Array  # () bool; a climb that does not run returns its start with score -inf
+    start: Array  # (3,)
+    basis: Array  # (3, 3)
+    iterations: Array  # () int32
+    sigma: Array  # () the score's kernel width (``ScoreModel.sigma``)
+    initial_step: Array  # ()
+    bound: EllipseBound | None = None
+
+
+def climbs_in_turn(score_at, stages: int, prepare, take, carry):
+    """Hill climbs one after another, written once in the program.
+
+    Every climb of a matcher scores its candidates with the same kernel; written out
+    climb by climb, the program holds that kernel once per climb (for XLA to compile
+    each time). Here one loop of ``stages`` passes runs one :func:`hill_climb` per
+    pass: ``prepare(i, carry) -> (carry, Climb)`` says what pass ``i`` climbs (the
+    stage-specific pieces, a ``lax.switch`` where stages differ), and
+    ``take(i, carry, climb, pose, score) -> carry`` what it does with the result.
+
+    Args:
+        score_at: ``(poses (C, 3), sigma) -> scores (C,)``.
+        stages: the number of passes (static).
+        prepare, take: see above; ``i`` is the traced pass index.
+        carry: the loop's state (any pytree).
+
+    Returns:
+        The carry after the last pass.
+    """
+
+    def body(i, carry):
+        carry, climb = prepare(i, carry)
+
+        def run():
+            pose, score, _ = hill_climb(lambda poses: score_at(poses, climb.sigma), climb.start, climb.basis,
+                                        climb.iterations, climb.bound, climb.initial_step)
+            return pose, score
+
+        def rest():
+            return climb.start, jnp.full((), -jnp.inf, climb.start.dtype)
+
+        pose, score = jax.lax.cond(climb.active, run, rest)
+        return take(i, carry, climb, pose, score)
+
+    return jax.lax.fori_loop(0, stages, body, carry)
 
 
 def gradient_refine(
@@ -254,9 +310,11 @@ def get_matcher(name: str | Callable) -> Callable:
 __all__ = [
     "MATCHERS",
     "EllipseBound",
+    "Climb",
     "MatchParams",
     "ellipse_basis",
     "ellipse_factor",
+    "climbs_in_turn",
     "ellipse_match",
     "get_matcher",
     "gmapping_basis",

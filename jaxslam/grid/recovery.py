@@ -32,7 +32,7 @@ other perturbed logs none (high noise, seeds 0-4).
 loop-closure search's coarse stage searches around the guess :math:`\hat x` at a small
 radius (:func:`jaxslam.grid.closure.coarse_candidates`, ``config.recover_radius`` m on
 each axis, ``config.closure_turn`` either way, then GMapping's hill climb from the best
-candidates, :func:`jaxslam.grid.closure.refine_best`), and its best pose :math:`x^r`
+candidates, :func:`recovery_phases`), and its best pose :math:`x^r`
 with score :math:`s^r` replaces the match where
 
 .. math:: s^r / n > \texttt{track\_min\_score}, \qquad s^r \ge g\, s \quad (g = \texttt{RECOVER\_GAIN}):
@@ -84,7 +84,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxslam.grid.closure import coarse_candidates, refine_best
+from jaxslam.grid.climbs import Phase, best_of
+from jaxslam.grid.closure import coarse_candidates, refine_count
 
 RECOVER_GAIN = 2.0
 """How much better than the refused match a recovered one must score."""
@@ -117,26 +118,46 @@ def jumped(increment: Array) -> Array:
     return (sideways > RECOVER_SLIP) & (sideways > RECOVER_SLIP_SHARE * jnp.hypot(increment[0], increment[1]))
 
 
-def recover(score_fn, read, local_points: Array, weights: Array, guess: Array, matched: Array, score: Array,
-            count: Array, increment: Array, params, config) -> tuple[Array, Array, Array]:
-    """The tracking's match, or the recovered one where the match is refused and the
-    search finds a trusted, clearly better pose (module docstring): ``(pose (3,), score
-    (), origin (3,))``, with ``score`` a raw sum over the ``count`` matched beams like
-    ``score_fn``'s, and ``origin`` the pose the constrained correction is taken from
-    (``guess``, or the recovered pose)."""
-    dtype = matched.dtype
+def recovery_phases(read, local_points: Array, weights: Array, guess: Array, count: Array, increment: Array,
+                    params, config) -> list[Phase]:
+    """The recovery's climbs as phases of the tracking's one climb
+    (:mod:`jaxslam.grid.climbs`): where the match in the carry (``matched``, ``score``: a
+    raw sum over the ``count`` matched beams) is refused and the increment jumped, one
+    climb from each candidate of the search around ``guess`` (module docstring). After
+    them the carry holds the tracking's match, or the recovered one where the search
+    found a trusted, clearly better pose, and ``origin``: the pose the constrained
+    correction is taken from (``guess``, or the recovered pose)."""
+    dtype = guess.dtype
     bar = jnp.asarray(params.track_min_score, dtype)
-    refused = (score / count <= bar) & jumped(increment.astype(dtype))
+    lanes = refine_count(config)
 
-    def search():
-        candidates = coarse_candidates(read, config.layout, local_points, weights, params.laser_offset, guess,
-                                       params, config, radius=config.recover_radius)
-        return refine_best(score_fn, candidates, params, config)
+    def open_prepare(lane, carry):
+        refused = (carry["score"] / count <= bar) & jumped(increment.astype(dtype))
+        candidates = jax.lax.cond(
+            refused,
+            lambda: coarse_candidates(read, config.layout, local_points, weights, params.laser_offset, guess,
+                                      params, config, radius=config.recover_radius),
+            lambda: jnp.zeros((lanes, 3), dtype))
+        carry = {**carry, "tracked": carry["matched"], "tracked_score": carry["score"], "searching": refused,
+                 "candidates": candidates, "found": jnp.full((), -jnp.inf, dtype), "found_pose": candidates[0]}
+        return carry, refused, candidates[0]
 
-    found_pose, found = jax.lax.cond(refused, search, lambda: (matched, score))
-    take = refused & (found / count > bar) & (found >= RECOVER_GAIN * score)
-    return (jnp.where(take, found_pose, matched), jnp.where(take, found, score),
-            jnp.where(take, found_pose, guess))
+    def next_prepare(lane, carry):
+        return carry, carry["searching"], carry["candidates"][lane + 1]
+
+    def take(lane, carry, active, pose, score):
+        carry = best_of(carry, active, pose, score)
+        found_pose, found, score = carry["found_pose"], carry["found"], carry["tracked_score"]
+        recovered = carry["searching"] & (found / count > bar) & (found >= RECOVER_GAIN * score)
+        return {**carry, "matched": jnp.where(recovered, found_pose, carry["tracked"]),
+                "score": jnp.where(recovered, found, score), "origin": jnp.where(recovered, found_pose, guess)}
+
+    return [Phase(1, False, open_prepare, take), Phase(lanes - 1, False, next_prepare, take)]
 
 
-__all__ = ["RECOVER_GAIN", "RECOVER_RADIUS", "RECOVER_SLIP", "RECOVER_SLIP_SHARE", "jumped", "recover", "slip"]
+def recovery_carry(dtype) -> dict:
+    """The keys :func:`recovery_phases` adds to the tracking's carry, empty."""
+    return {"tracked": jnp.zeros((3,), dtype), "tracked_score": jnp.zeros((), dtype)}
+
+
+__all__ = ["RECOVER_GAIN", "RECOVER_RADIUS", "RECOVER_SLIP", "RECOVER_SLIP_SHARE", "jumped", "recovery_carry", "recovery_phases", "slip"]

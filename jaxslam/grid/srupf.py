@@ -73,7 +73,7 @@ from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
 from jaxslam.runtime.driver import scan_runner
 from jaxslam.runtime.executables import module_function
 from jaxslam.grid.filter import (
-    coarse_start,
+    coarse_to_fine,
     finish_step,
     guard,
     init,
@@ -92,7 +92,6 @@ from jaxslam.grid.types import (
     noise_scale_of,
 )
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.matching import get_matcher, search_bound
 from jaxslam.grid.score import make_score_fn, scan_log_likelihood
 from jaxslam.grid.tracking import constrained_pose, per_scan
 from jaxslam.models.odometry import (
@@ -186,18 +185,8 @@ def particle_update(
     else:
         raise ValueError(f"sampling must be 'prior' or 'posterior', got {config.sampling!r}")
     if config.correction == "pc":
-        matcher = get_matcher(config.matcher)
-        best, best_score = matcher(
-            score_fn,
-            coarse_start(read, local_points, mask, start, params, config,
-                         search_bound(config.matcher, prediction.mean, prediction.sqrt_cov, params,
-                                      params.coarse_radius)),
-            prediction.sqrt_cov,
-            params,
-            config.match_iterations,
-            config.refine_steps,
-            prior_mean=prediction.mean,
-        )
+        best, best_score = coarse_to_fine(read, local_points, mask, start, prediction.sqrt_cov, params, config,
+                                          prediction.mean, prior_mean=prediction.mean)
         if config.constrain_matches:
             best = constrained_pose(score_fn, best, start, best_score, count, params)
         accept = best_score / count > params.min_score

@@ -131,11 +131,11 @@ from jax import Array
 from jaxslam.core import se2
 from jaxslam.datasets.geometry import se2_compose
 from jaxslam.runtime.driver import best_particle
-from jaxslam.grid.closure import close_loop, record_applied
+from jaxslam.grid.climbs import Phase, run_phases
+from jaxslam.grid.closure import closure_carry, closure_outcome, closure_phases, record_applied, refine_count
 from jaxslam.grid.undone_closures import take_back
-from jaxslam.grid.filter import coarse_start, empty_info, match_geometry, particle_reader, score_model
-from jaxslam.grid.matching import hill_climb_match
-from jaxslam.grid.recovery import recover
+from jaxslam.grid.filter import empty_info, match_geometry, particle_reader, score_model
+from jaxslam.grid.recovery import recovery_carry, recovery_phases
 from jaxslam.grid.score import make_score_fn
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
 
@@ -156,48 +156,46 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
+    model = score_model(params)
     score_fn = make_score_fn(
-        read, local_points, mask, params.laser_offset, config.layout, score_model(params),
-        config.score_kernel, config.free_check,
+        read, local_points, mask, params.laser_offset, config.layout, model, config.score_kernel, config.free_check,
     )
+
+    def score_at(poses, sigma):
+        return make_score_fn(read, local_points, mask, params.laser_offset, config.layout,
+                             model._replace(sigma=sigma), config.score_kernel, config.free_check)(poses)
+
     # A turn the odometry missed (FR079's doorways: up to 10 deg per scan) can lie beyond
     # the hill climb's reach. If the guess turned by +-track_turn already scores above
     # the converged match, that match is stuck: climb again from the better turned start.
-    # (Two passes of one climb, the second under a cond: the program holds the climb once.)
     turns = jnp.asarray([1.0, -1.0], dtype) * jnp.asarray(params.track_turn, dtype)
     turned = jnp.broadcast_to(guess, (2, 3)).at[:, 2].add(turns)
     turned = turned.at[:, 2].set(se2.wrap_angle(turned[:, 2]))
     turned_scores = score_fn(turned)
     retry = turned[jnp.argmax(turned_scores)]
-
-    def climb(start):
-        if config.coarse_tracking:  # the coarse stage only where the climb runs
-            start = coarse_start(read, local_points, mask, start, params, config)
-        return hill_climb_match(score_fn, start, None, params, config.match_iterations)
-
-    def attempt(i, carry):
-        best, best_score = carry
-        start = jnp.where(i == 0, guess, retry)
-        return jax.lax.cond(
-            (i == 0) | (jnp.max(turned_scores) > best_score),
-            lambda: climb(start),
-            lambda: (best, best_score),
-        )
-
-    matched, score = jax.lax.fori_loop(0, 2, attempt, (guess, jnp.full((), -jnp.inf, dtype)))
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
-    origin = guess
-    if config.recover_radius > 0:  # an odometry glitch: a wide match where this one is refused
-        matched, score, origin = recover(score_fn, read, local_points, mask, guess, matched, score, count,
-                                         increment, params, config)
-    closed, conflict, memory = jnp.asarray(False), jnp.zeros((), dtype), state.closure_memory
-    undo = jnp.zeros((4,), dtype)
+    memory = state.closure_memory
     if config.closure:
         memory = memory.at[4].add(jnp.hypot(increment[0], increment[1]).astype(dtype))
+    lanes = refine_count(config)
+    carry = {"start": guess, "matched": guess, "score": jnp.full((), -jnp.inf, dtype), "origin": guess,
+             "searching": jnp.asarray(False), "candidates": jnp.zeros((lanes, 3), dtype),
+             "found": jnp.zeros((), dtype), "found_pose": jnp.zeros((3,), dtype),
+             **recovery_carry(dtype), **closure_carry(dtype)}
+    # Every climb of the scan is a phase of one climb in the program (jaxslam.grid.climbs).
+    phases = match_phases(guess, retry, jnp.max(turned_scores), config)
+    if config.recover_radius > 0:  # an odometry glitch: a wide match where this one is refused
+        phases += recovery_phases(read, local_points, mask, guess, count, increment, params, config)
+    if config.closure:
+        phases += closure_phases(read, config.layout, local_points, mask, params.laser_offset, count, memory,
+                                 params, config)
+    carry = run_phases(score_at, phases, carry, params, config)
+    matched, score, origin = carry["matched"], carry["score"], carry["origin"]
+    closed, conflict = jnp.asarray(False), jnp.zeros((), dtype)
+    undo = jnp.zeros((4,), dtype)
+    if config.closure:
         local = matched
-        matched, score, closed, undo, conflict, memory = close_loop(
-            score_fn, read, config.layout, local_points, mask, params.laser_offset, matched, score, count, memory,
-            params, config)
+        matched, score, closed, undo, conflict, memory = closure_outcome(carry, count, memory, params)
         undone = undo[0] > 0
         taken, closed = closed, closed | undone
     score = score / count
@@ -209,6 +207,37 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
         memory = record_applied(memory, taken, se2.compose(pose, se2.inverse(local)))
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
     return motion, score, accepted, closed, conflict, memory, undo
+
+
+def match_phases(guess: Array, retry: Array, turned_score: Array, config: GridSlamConfig) -> list[Phase]:
+    """The tracking's own climbs as phases (:mod:`jaxslam.grid.climbs`): the match from
+    ``guess``, then, where the better turned guess ``retry`` scored ``turned_score``
+    above it, the match from ``retry`` in its place (each match the coarse climb, with
+    ``config.coarse_tracking``, then the narrow one from where it ended)."""
+    coarse = bool(config.coarse_tracking and config.coarse_iterations)
+
+    def match(first: bool) -> list[Phase]:
+        start = guess if first else retry
+
+        def active(carry):  # the first match always; the second where a turned guess beats it
+            return jnp.asarray(True) if first else turned_score > carry["score"]
+
+        def coarse_prepare(lane, carry):
+            return carry, active(carry), start
+
+        def coarse_take(lane, carry, ran, pose, score):
+            return {**carry, "start": pose}
+
+        def fine_prepare(lane, carry):
+            return carry, active(carry), carry["start"] if coarse else start
+
+        def fine_take(lane, carry, ran, pose, score):
+            return {**carry, "matched": jnp.where(ran, pose, carry["matched"]),
+                    "score": jnp.where(ran, score, carry["score"])}
+
+        return [Phase(1, True, coarse_prepare, coarse_take)] * coarse + [Phase(1, False, fine_prepare, fine_take)]
+
+    return match(True) + match(False)
 
 
 def constrained_pose(score_fn, matched: Array, start: Array, score: Array, count: Array,

@@ -1,6 +1,6 @@
 r"""The path a run reports after the loop-closure watch undid closures (host, NumPy).
 
-:func:`jaxslam.grid.closure.close_loop` watches every closure it takes over the next
+:func:`jaxslam.grid.closure.closure_phases` watches every closure it takes over the next
 ``closure_watch`` m of odometry and undoes one whose scans keep ending in space the old
 map has seen through. On the device the undo only moves the pose back from the scan
 that decides it (``Info.track_undo``); the scans tracked in the closure's frame before
@@ -23,7 +23,7 @@ def take_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndar
     taken back on the scans it moved.
 
     ``undo (S-1, 4)`` is ``Info.track_undo`` of scans ``1..S-1``
-    (:func:`jaxslam.grid.closure.close_loop`): at a scan :math:`b` that undid a closure
+    (:func:`jaxslam.grid.closure.closure_phases`): at a scan :math:`b` that undid a closure
     taken :math:`n` scans before with correction :math:`A`, the scans
     :math:`b-n \le s < b` were tracked in the closure's frame
     (:math:`x = A \oplus x_{local}`), and scan :math:`b` on is back in the frame before
@@ -46,7 +46,7 @@ def put_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndarr
 def judge_at_end(memory: np.ndarray, params) -> np.ndarray:
     r"""Host: the closure still watched when the run ends, judged on the scans it had.
 
-    The watch of :func:`jaxslam.grid.closure.close_loop` runs over ``closure_watch`` m of
+    The watch of :func:`jaxslam.grid.closure.closure_phases` runs over ``closure_watch`` m of
     odometry; a log that ends sooner leaves its last closure unjudged. The path reported
     judges it on the :math:`n` scans watched (``memory[10]``, after the closure's own
     scan), whose shares of beams ending in known free space sum to :math:`\Sigma`

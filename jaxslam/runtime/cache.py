@@ -46,6 +46,7 @@ compilation (JAX reads the folder when it first compiles)::
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 __all__ = [
@@ -62,6 +63,8 @@ DISABLED = frozenset({"off", "none", "0", "false", "no", "disable", "disabled"})
 """Values of ``JAXSLAM_CACHE_DIR`` (or ``cache_dir``) that turn the cache off."""
 
 _BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
+_TRACE = "/jax/core/compile/jaxpr_trace_duration"
+_LOWER = "/jax/core/compile/jaxpr_to_mlir_module_duration"
 _CACHE_HITS = "/jax/compilation_cache/cache_hits"
 
 
@@ -153,13 +156,25 @@ class CompileCounter:
     Attributes:
         requests: programs that went to the backend (compiled or loaded from the cache).
         cache_hits: of those, loaded from the persistent cache.
-        seconds: time spent in those requests (compiling or loading).
+        seconds: time spent in those requests (XLA compiling, or loading).
+        trace_s: time spent tracing Python functions to jaxprs (a jit traced inside
+            another's trace counted once).
+        lower_s: time spent lowering jaxprs to StableHLO.
     """
 
     def __init__(self) -> None:
         self.requests = 0
         self.cache_hits = 0
         self.seconds = 0.0
+        self._spans: dict[str, list[tuple[float, float]]] = {_TRACE: [], _LOWER: []}
+
+    @property
+    def trace_s(self) -> float:
+        return _covered(self._spans[_TRACE])
+
+    @property
+    def lower_s(self) -> float:
+        return _covered(self._spans[_LOWER])
 
     @property
     def compiled(self) -> int:
@@ -174,6 +189,9 @@ class CompileCounter:
         if event == _BACKEND_COMPILE:
             self.requests += 1
             self.seconds += duration
+        elif event in self._spans:  # reported as it ends: the span is [now - duration, now]
+            now = time.perf_counter()
+            self._spans[event].append((now - duration, now))
 
     def __enter__(self) -> CompileCounter:
         import jax.monitoring
@@ -189,6 +207,18 @@ class CompileCounter:
         jax.monitoring.unregister_event_duration_listener(self._on_duration)
 
     def as_dict(self) -> dict[str, float | int]:
-        """``{"programs", "compiled", "cache_hits", "seconds"}`` for a summary."""
+        """``{"programs", "compiled", "cache_hits", "seconds", "trace_s", "lower_s"}`` for
+        a summary (``seconds``: XLA's compilation or the cache's loads)."""
         return {"programs": self.requests, "compiled": self.compiled,
-                "cache_hits": self.cache_hits, "seconds": round(self.seconds, 3)}
+                "cache_hits": self.cache_hits, "seconds": round(self.seconds, 3),
+                "trace_s": round(self.trace_s, 3), "lower_s": round(self.lower_s, 3)}
+
+
+def _covered(spans: list[tuple[float, float]]) -> float:
+    """The length of the union of ``(start, end)`` spans (nested traces counted once)."""
+    total, reach = 0.0, float("-inf")
+    for start, end in sorted(spans):
+        if end > reach:
+            total += end - max(start, reach)
+            reach = end
+    return total

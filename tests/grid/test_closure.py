@@ -12,11 +12,10 @@ import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.grid.closure import (
-    MEMORY, POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, undo_and_follow, window_half,
+    MEMORY, POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
 )
 from jaxslam.grid.undone_closures import judge_at_end, put_back, reported_undo, take_back
 from jaxslam.grid.map import GridSpec, dense_reader
-from jaxslam.grid.matching import hill_climb_match
 from jaxslam.grid.types import default_params
 from jaxslam.grid.tracking import track as _track
 from tests.grid.sim_state import state_and_scans
@@ -137,44 +136,6 @@ def test_window_holds_every_searched_end_point():
     half = window_half(spec, 4.0)
     assert half % POOL == 0 and half * spec.resolution >= 20.0 + 4.0
     assert TURN_STEP == pytest.approx(math.radians(1.0))
-
-
-def test_undo_and_follow_is_the_two_climbs_in_turn():
-    """The one climb run twice (:func:`undo_and_follow`) gives what the two climbs of the
-    closure search give one after the other: where undone, the match climbs again from
-    A^-1 (+) x0; then, where a candidate is held, C (+) x climbs from that new match x
-    (not from the old one). A smooth score whose climbs end where they start from tells
-    the orders apart."""
-    config = dataclasses.make_dataclass("C", [("match_iterations", int)])(match_iterations=3)
-    with jax.enable_x64(True):
-        params = default_params(np.linspace(-1.0, 1.0, 5), dtype=np.float64)
-        target = jnp.asarray([0.9, -0.7, 0.4])
-
-        def score_fn(poses):
-            d = poses - target
-            return -(d[..., 0] ** 2 + d[..., 1] ** 2 + 4.0 * d[..., 2] ** 2)
-
-        def climb(start):
-            return hill_climb_match(score_fn, start, None, params, config.match_iterations)
-
-        matched = jnp.asarray([0.1, 0.2, 0.0])
-        score = score_fn(matched[None])[0]
-        applied = jnp.asarray([0.3, -0.2, 0.05])
-        held = jnp.asarray([0.2, 0.1, -0.04])
-        for undo in (False, True):
-            for holding in (False, True):
-                got = undo_and_follow(score_fn, matched, score, jnp.asarray(undo), jnp.asarray(holding),
-                                      applied, held, params, config)
-                m, s = climb(se2_compose(se2_inverse(np.asarray(applied)[None]), np.asarray(matched)[None])[0]) \
-                    if undo else (matched, score)
-                f, fs = climb(se2_compose(np.asarray(held)[None], np.asarray(m)[None])[0]) if holding else (m, s)
-                for value, expected in zip(got, (m, s, f, fs)):
-                    np.testing.assert_allclose(np.asarray(value), np.asarray(expected), rtol=0, atol=1e-12)
-                if undo and holding:  # the held candidate climbed from the undone match
-                    stale, _ = climb(se2_compose(np.asarray(held)[None], np.asarray(matched)[None])[0])
-                    assert np.max(np.abs(np.asarray(got[2]) - np.asarray(stale))) > 0.05
-                if not undo:
-                    np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(matched))
 
 
 @pytest.fixture(scope="module")
