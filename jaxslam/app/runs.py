@@ -362,7 +362,7 @@ def run(
     ``rerun`` (a ``.rrd`` path) and/or ``rerun_spawn`` log the run to Rerun as it goes
     (:mod:`jaxslam.viz.rerun_log`; needs ``pip install "jaxslam[viz]"``).
     ``max_range`` (CARMEN logs) sets the range limit, in place of the logged one and
-    of the "no return" sentinel detection (:func:`jaxslam.datasets.carmen.detect_no_return`).
+    of the "no return" sentinel detection (:func:`jaxslam.datasets.no_return.detect_no_return`).
     ``float64`` runs the filter in double precision: JAX's 64-bit mode is switched on
     for this run only (``jax.enable_x64``), the default float32 path never touches it.
     ``loop_closure`` (laser data) turns the tracking's loop-closure search

@@ -432,7 +432,7 @@ def calibrate(
         seed: base seed of the filters' keys.
         params: starting parameters (full or overrides on ``params_for``).
         names: the noise levels fitted (default speed, steering, range, bearing).
-        config: overrides of :class:`Config` fields.
+        config: overrides of :class:`~jaxslam.feature.params.Config` fields.
         dtype: float dtype.
         likelihood: the weight whose :math:`\log Z` is maximised (``Config.likelihood``:
             ``"mixture"``, the default, or the paper's ``"gated"``, biased to small noise).

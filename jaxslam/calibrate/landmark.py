@@ -106,9 +106,10 @@ def log_likelihoods(
     initial_pose: Array | None = None, checkpoint: bool = True,
 ) -> Array:
     """``(T,)`` one-step log-likelihood estimates of a whole sequence; the same keys as
-    :func:`jaxslam.feature.filter.run`. With ``checkpoint`` each step is rematerialised
-    in the backward pass (``jax.checkpoint``), so memory does not hold every step's
-    intermediates (the scan still stores each step's state)."""
+    the filter's scan ``jaxslam.feature.filter.run``
+    (:func:`jaxslam.runtime.driver.step_keys`). With ``checkpoint`` each step is
+    rematerialised in the backward pass (``jax.checkpoint``), so memory does not hold
+    every step's intermediates (the scan still stores each step's state)."""
     state = feature_filter.init(key, params, config, initial_pose)
     keys = step_keys(key, np.shape(controls)[0])
 

@@ -2,9 +2,10 @@
 odometry are handled.
 
 :func:`check_laser_log` runs on every log ``jaxslam run`` maps (CARMEN logs and ROS
-bags alike, after the loader's own checks) and raises :class:`DataFormatError` naming
-the file and the scan (its line in a CARMEN log, its message index on the scan topic
-in a ROS bag) where a log cannot give a true map:
+bags alike, after the loader's own checks) and raises
+:class:`~jaxslam.datasets.paths.DataFormatError` naming the file and the scan (its
+line in a CARMEN log, its message index on the scan topic in a ROS bag) where a log
+cannot give a true map:
 
 * fewer than two scans (nothing to filter);
 * no reading that is a return (every beam at or beyond the range limit, ``inf`` or

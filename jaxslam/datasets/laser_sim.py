@@ -37,7 +37,7 @@ __all__ = ["SimulatedLog", "office_world", "raycast", "ring_path", "simulate"]
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SimulatedLog(CarmenLog):
-    """A :class:`CarmenLog` with ground truth: ``true_poses (S, 3)`` and ``walls (M, 4)``."""
+    """A :class:`~jaxslam.datasets.carmen.CarmenLog` with ground truth: ``true_poses (S, 3)`` and ``walls (M, 4)``."""
 
     true_poses: np.ndarray | None = None
     walls: np.ndarray | None = None

@@ -4,8 +4,8 @@ parse it again.
 Reading Intel (13631 scans) takes 0.7-1.0 s: decompressing, NumPy's text parser, the
 "no return" sentinel search, the odometry checks. A warm ``jaxslam run`` (compiled
 programs from :mod:`jaxslam.runtime.cache`) spends about a quarter of everything besides its
-filter loop there. :func:`load_carmen_cached` keeps the finished :class:`CarmenLog`
-in the subfolder ``logs`` of the compilation-cache folder as an uncompressed ``.npz``
+filter loop there. :func:`load_carmen_cached` keeps the finished
+:class:`~jaxslam.datasets.carmen.CarmenLog` in the subfolder ``logs`` of the compilation-cache folder as an uncompressed ``.npz``
 (every array as stored, the other fields as JSON) and loads that in about 20 ms.
 
 An entry is used only when everything that determines the result is equal; its file
@@ -73,7 +73,10 @@ def load_carmen_cached(
         ``"off"``.
 
     Raises:
-        What ``load_carmen`` raises.
+        DataFormatError: malformed input, as :func:`~jaxslam.datasets.carmen.load_carmen`
+            raises it.
+        FileNotFoundError: ``path`` does not exist.
+        ValueError: an option value that ``load_carmen`` refuses.
     """
     if folder is None:
         return load_carmen(path, **options), "off"

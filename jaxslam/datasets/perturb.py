@@ -9,8 +9,9 @@ run on the perturbed log is scored against the reference with the relations metr
 (:mod:`jaxslam.metrics.relations`) on relations sampled from the reference.
 
 Odometry model: :mod:`jaxslam.datasets.odometry_noise` (noise proportional to the
-motion plus slowly varying scale and heading drifts; :data:`NOISE_LEVELS` gives two
-levels); so are the reference relations below (:func:`reference_relations`).
+motion plus slowly varying scale and heading drifts; :data:`~jaxslam.datasets.odometry_noise.NOISE_LEVELS`
+gives two levels); so are the reference relations below
+(:func:`~jaxslam.datasets.odometry_noise.reference_relations`).
 
 Timestamps. The corrected logs print stamps with ``%g`` (6 significant digits):
 csail and belgioioso (Unix times) get ties, freiburg-campus and orebro are all zero,
@@ -243,11 +244,12 @@ def make_perturbed_log(
 
     Args:
         name_or_path: a key of :data:`CORRECTED_LOGS` or a corrected log's path.
-        level: ``"low"``, ``"high"`` (:data:`NOISE_LEVELS`) or an :class:`OdometryNoise`.
+        level: ``"low"``, ``"high"`` (:data:`~jaxslam.datasets.odometry_noise.NOISE_LEVELS`) or an
+            :class:`~jaxslam.datasets.odometry_noise.OdometryNoise`.
         seed: seeds the odometry noise; the relations' loop sampling uses the
             reference alone (seed 0), so all seeds of a log share one relations set.
         out_dir: output folder (created).
-        relation_options: passed to :func:`reference_relations`.
+        relation_options: passed to :func:`~jaxslam.datasets.odometry_noise.reference_relations`.
     """
     if isinstance(level, str):
         if level not in NOISE_LEVELS:

@@ -118,8 +118,8 @@ def numeric_rows(
 
     Blank lines and lines starting with ``#`` are skipped; ``commas`` also accepts
     commas as separators. A directory, a row with another number of fields, a field
-    that is not a number or not finite raise :class:`DataFormatError` naming the file
-    and line; ``kind`` names the expected file type in the directory message.
+    that is not a number or not finite raise :class:`~jaxslam.datasets.paths.DataFormatError`
+    naming the file and line; ``kind`` names the expected file type in the directory message.
     """
     names = fields.split()
     text = read_text(path, kind)
@@ -142,7 +142,7 @@ def numeric_rows(
 
 def load_npz(path: os.PathLike | str, names: list[str]) -> dict[str, np.ndarray]:
     """The named arrays of an ``.npz`` archive, each checked to be numeric and non-empty;
-    anything else is a :class:`DataFormatError`."""
+    anything else is a :class:`~jaxslam.datasets.paths.DataFormatError`."""
     path = Path(path)
     # A damaged archive fails deep inside zipfile/zlib/NumPy with many exception types
     # (BadZipFile, zlib.error, EOFError, NotImplementedError for a garbled version
@@ -241,8 +241,8 @@ def read_table(path: os.PathLike | str, n_columns: int, what: str) -> np.ndarray
     Blank lines are skipped; LF, CRLF and CR line ends are accepted; a gzip stream is
     recognised by its first bytes. Every problem (wrong column count, a word that is not
     a number, a non-finite value, a character that is not printable ASCII, a truncated
-    or corrupt gzip stream, no records at all) raises :class:`DataFormatError` naming
-    the file and line.
+    or corrupt gzip stream, no records at all) raises
+    :class:`~jaxslam.datasets.paths.DataFormatError` naming the file and line.
 
     Args:
         path: the file.

@@ -1,4 +1,4 @@
-"""ROS 1 and ROS 2 bags (``.bag``, sqlite3 and MCAP) as a :class:`CarmenLog`.
+"""ROS 1 and ROS 2 bags (``.bag``, sqlite3 and MCAP) as a :class:`~jaxslam.datasets.carmen.CarmenLog`.
 
 Built on ``rosbags`` (pure Python: no ROS installation needed). The reader takes
 
@@ -52,12 +52,12 @@ Errors. A missing topic, a topic of the wrong type, scan stamps that go back by 
 than ``max_backstep`` seconds (shorter backward steps are counted in
 ``stats["backwards_timestamps"]``, as the CARMEN reader does), a change of the beam
 count or geometry, a zero header stamp, a laser frame with no transform to the base
-frame, and unreadable bags raise :class:`DataFormatError` naming the bag, the topic
-and the message index. With ``on_error="skip"`` a bad scan message is dropped and
+frame, and unreadable bags raise :class:`~jaxslam.datasets.paths.DataFormatError` naming the
+bag, the topic and the message index. With ``on_error="skip"`` a bad scan message is dropped and
 counted instead (``stats["skipped_messages"]``, ``stats["skipped:<reason>"]``).
 
 Layout: the message readers and the time, heading and geometry helpers are in
-:mod:`jaxslam.datasets.rosbag_messages`, :func:`write_rosbag` in
+:mod:`jaxslam.datasets.rosbag_messages`, :func:`~jaxslam.datasets.rosbag_write.write_rosbag` in
 :mod:`jaxslam.datasets.rosbag_write`; both are re-exported here.
 """
 
@@ -224,7 +224,7 @@ def load_rosbag(
     max_backstep: float = 1.0,
     max_tilt: float = 0.1,
 ) -> CarmenLog:
-    """Read a ROS bag into a :class:`CarmenLog` (see the module docstring).
+    """Read a ROS bag into a :class:`~jaxslam.datasets.carmen.CarmenLog` (see the module docstring).
 
     Args:
         path: a ROS 1 ``.bag``, a ROS 2 bag folder, or a ``.mcap``/``.db3`` file.
@@ -243,7 +243,7 @@ def load_rosbag(
         max_tilt: largest tilt (rad) of the laser against the base frame.
 
     Returns:
-        A :class:`CarmenLog` with ``message="LaserScan"``; ``scan_lines`` holds each
+        A :class:`~jaxslam.datasets.carmen.CarmenLog` with ``message="LaserScan"``; ``scan_lines`` holds each
         scan's message index on the scan topic (0-based, as in the error messages),
         ``logger_times`` the bag's record times, ``laser_poses`` is None, ``params``
         names the topics and frames used, ``stats`` / ``problems`` the recoveries.

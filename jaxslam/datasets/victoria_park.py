@@ -21,7 +21,7 @@ the ``.mat`` data line up without any shift (the 7230 ASCII scans are the first 
 ``aa3_lsr2`` scans, to the millisecond).
 
 Vehicle model (Guivant & Nebot 2001, Sec. II; UFastSLAM ``predictACFRu.m``)
---------------------------------------------------------------------------
+---------------------------------------------------------------------------
 The car is an Ackermann vehicle with wheelbase ``L``. The speed sensor is an encoder on
 the rear-left wheel, ``H`` to the left of the rear-axle centre; the laser is ``a`` ahead
 of the front axle and ``b`` to the left of the centre line (``CAR_GEOMETRY``, from ACFR's
@@ -63,7 +63,7 @@ scan 0; before the first DR sample the car is at rest). The paper's 30 m percept
 limit is applied as ``range < max_range`` (UFastSLAM: ``OD < perceplimit``).
 
 Input checks and the policy for oddities
----------------------------------------
+----------------------------------------
 Every loader raises :class:`~jaxslam.datasets.paths.DataFormatError`, naming the file,
 the line (text) or record (``.npz``) and the problem, for: a wrong number of columns; a
 word that is not a number (including ``1_000``, which Python would accept); NaN or
@@ -81,15 +81,16 @@ the trajectory.
 
 Recoverable oddities are kept, handled by a fixed rule and counted, never silently:
 
-* raw laser ranges above :data:`NO_RETURN_M` (the file's 81.91 m) mean "no
+* raw laser ranges above :data:`~jaxslam.datasets.victoria_park_files.NO_RETURN_M` (the file's 81.91 m) mean "no
   reflection"; they stay in ``ranges`` and are counted (``laser_no_return_beams``);
 * raw laser ranges that are NaN, +-inf or <= 0 are replaced by
-  :data:`NO_RETURN_VALUE` (a no return) and counted (``laser_invalid_ranges``);
+  :data:`~jaxslam.datasets.victoria_park_files.NO_RETURN_VALUE` (a no return) and counted (``laser_invalid_ranges``);
 * detections at or beyond ``max_range`` are dropped and counted
   (``observations_beyond_max_range``, also ``n_dropped_range``).
 
-:func:`load_laser` puts its counts in ``LaserScans.meta``; :func:`load_sequence` puts
-those of the source it used in ``meta["recovered"]``.
+:func:`~jaxslam.datasets.victoria_park_files.load_laser` puts its counts in
+``LaserScans.meta``; :func:`load_sequence` puts those of the source it used in
+``meta["recovered"]``.
 
 Steering calibration: ``load_sequence(steering="acfr")`` replaces the ``.mat`` steering
 by ACFR's later recalibration, the affine map ``steer_ascii = c_1 steer_mat + c_0`` that the
@@ -103,8 +104,12 @@ Note: UFastSLAM skips prediction *and* update whenever the DR speed is exactly 0
 car stands still for the first ~20 s); a filter that wants the same behaviour can test
 ``(controls[i, :, 0] != 0).any()``.
 
-Layout: the readers of the single files (:func:`load_dead_reckoning`, :func:`load_gps`,
-:func:`load_scan_times`, :func:`load_laser`, :func:`load_detections`) are in
+Layout: the readers of the single files
+(:func:`~jaxslam.datasets.victoria_park_files.load_dead_reckoning`,
+:func:`~jaxslam.datasets.victoria_park_files.load_gps`,
+:func:`~jaxslam.datasets.victoria_park_files.load_scan_times`,
+:func:`~jaxslam.datasets.victoria_park_files.load_laser`,
+:func:`~jaxslam.datasets.victoria_park_files.load_detections`) are in
 :mod:`jaxslam.datasets.victoria_park_files` and re-exported here; the strict table
 reader they share is :mod:`jaxslam.datasets.reader`.
 """
@@ -153,7 +158,7 @@ CAR_GEOMETRY = dict(L=2.83, H=0.76, a=0.95, b=0.5)
 laser ``a`` ahead of the front axle and ``b`` to the left."""
 
 LASER_OFFSET = (round(CAR_GEOMETRY["L"] + CAR_GEOMETRY["a"], 9), CAR_GEOMETRY["b"])
-"""Laser position in the rear-axle frame [m]: ``(L + a, b) = (3.78, 0.5)``."""
+"""Laser position in the rear-axle frame, ``(L + a, b) = (3.78, 0.5)`` m."""
 
 EXPECTED = dict(
     n_dr=61945,

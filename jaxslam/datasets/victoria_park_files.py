@@ -42,7 +42,7 @@ NO_RETURN_VALUE = 81.91
 
 N_BEAMS = 361
 BEAM_ANGLES = np.arange(N_BEAMS) * (np.pi / 360.0)
-"""Raw laser beam angles [rad]: 0 = right, pi/2 = ahead, pi = left."""
+"""Raw laser beam angles in rad (0 right, pi/2 ahead, pi left)."""
 
 
 # --------------------------------------------------------------------------- records

@@ -125,8 +125,9 @@ def run_landmark_ensemble(
         particles: particles per filter.
         seeds: PRNG seeds; member ``i`` equals
             ``run_landmark_slam(sequence, seed=seeds[i], ...)``.
-        params: a full :class:`Params`, or a dict of overrides on ``params_for``.
-        config: overrides of the :class:`Config` fields.
+        params: a full :class:`~jaxslam.feature.params.Params`, or a dict of overrides on
+            :func:`~jaxslam.feature.experiment.params_for`.
+        config: overrides of the :class:`~jaxslam.feature.params.Config` fields.
         dtype: float dtype of the filters.
         record_poses: also return every particle's pose after each step
             (``particle_poses``, ``S T N 3`` floats).

@@ -121,8 +121,10 @@ def run_landmark_slam(
         algorithm: ``"erb-upf"`` or ``"rb-upf"``.
         particles: number of particles.
         seed: PRNG seed (the same seed gives RB and ERB the same random streams).
-        params: a full :class:`Params`, or a dict of overrides on :func:`params_for`.
-        config: overrides of the :class:`Config` fields (capacity, update, ...).
+        params: a full :class:`~jaxslam.feature.params.Params`, or a dict of overrides on
+            :func:`params_for`.
+        config: overrides of the :class:`~jaxslam.feature.params.Config` fields (capacity,
+            update, ...).
         progress: show a progress bar and the compilation notice.
         chunk: scans per compiled chunk.
         dtype: float dtype of the filter (float64 needs ``jax_enable_x64``).

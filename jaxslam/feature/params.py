@@ -130,7 +130,7 @@ class Config:
         resampler: ``systematic``, ``stratified``, ``multinomial`` or ``residual``.
         skip_stationary: skip a scan whose controls all have zero speed (UFastSLAM).
         compare_proposals: also compute the other proposal's covariance for
-            :class:`Info` (free in batch mode; a second pass in sequential mode).
+            :class:`~jaxslam.feature.filter.Info` (free in batch mode; a second pass in sequential mode).
         likelihood: the weight increment. ``"gated"`` (the paper's eq. 11): the
             joint innovation likelihood of the matched observations; unmatched ones
             contribute nothing. ``"mixture"``: every observation contributes

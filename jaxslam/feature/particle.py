@@ -15,7 +15,8 @@ branches over the observation width: written inside a branch, the carried tables
 would be copied whole on every scan.
 
 Landmark covariances are symmetrised and their smallest eigenvalue lifted to a floor
-(:func:`_cov_floor`), so a downdate that would lose positive definiteness is
+(``_cov_floor``: ``max(16 eps tr(cov), (4 eps (|mean| + 1 m))^2)`` with the dtype's
+machine epsilon ``eps``), so a downdate that would lose positive definiteness is
 repaired; an update or a new landmark that is not finite is not stored. A particle
 whose sampled pose, factor or weight increment is not finite keeps its pose and map
 (writes to slot ``capacity`` are dropped) and is flagged in :class:`ParticleOut`.
@@ -145,7 +146,7 @@ def update_landmark(
     points over the landmark, additive R).
 
     The updated covariance ``P - K S K^T`` is symmetrised and its smallest eigenvalue
-    lifted to :func:`_cov_floor` of the prior, so a downdate that would lose positive
+    lifted to the floor (``_cov_floor``) of the prior, so a downdate that would lose positive
     definiteness in finite precision (a tiny ``R``, a near-singular prior) is repaired
     rather than stored. An update that is not finite anyway is refused: the prior is
     returned unchanged.
@@ -180,7 +181,7 @@ def initialise_landmark(pose: Array, observation: Array, params: Params) -> tupl
     the inverse observation model over ``z ~ N(observation, R)``.
 
     The covariance is symmetrised with its smallest eigenvalue lifted to
-    :func:`_cov_floor` of itself. Returns ``(mean, cov, ok)``, ``ok`` False where
+    the floor (``_cov_floor``) of itself. Returns ``(mean, cov, ok)``, ``ok`` False where
     the result is not finite (the caller does not store it).
     """
     dtype = pose.dtype

@@ -92,7 +92,7 @@ class RunStats:
 
 def recompilations(growths: list[dict[str, Any]]) -> int:
     """Growths that changed the layout and so recompiled (a moved page table keeps the
-    program; :func:`_grown` records which)."""
+    program; each growth's ``recompiled`` says which)."""
     return sum(1 for g in growths if g["recompiled"])
 
 

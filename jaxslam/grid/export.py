@@ -32,8 +32,8 @@ _BLOCK_CELLS = 1 << 22  # about this many cells per block of rows (bounded tempo
 
 
 def row_blocks(height: int, row_cells: int, multiple: int = 1):
-    """``(r0, r1)`` ranges of rows of about :data:`_BLOCK_CELLS` values each (``row_cells``
-    per row), each a multiple of ``multiple`` rows but the last: big maps are converted,
+    """``(r0, r1)`` ranges of rows of about 4.2 million values each (``_BLOCK_CELLS``;
+    ``row_cells`` per row), each a multiple of ``multiple`` rows but the last: big maps are converted,
     drawn and encoded block by block, never as one full-size temporary."""
     step = multiple * max(1, _BLOCK_CELLS // max(row_cells * multiple, 1))
     for r0 in range(0, height, step):

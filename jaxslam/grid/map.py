@@ -28,6 +28,7 @@ import numpy as np
 from jax import Array
 
 CELL_DTYPE = jnp.int8
+"""Cell type of every grid and tile pool (``int8`` quantised log-odds, one byte per cell)."""
 
 CellReader = Callable[[Array, Array], Array]
 """``(cols, rows) -> cells``: the int8 cells of one map at integer coordinates of any

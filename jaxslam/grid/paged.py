@@ -70,7 +70,7 @@ from jax import Array
 from jaxslam.grid.map import CELL_DTYPE
 
 PINNED = 1 << 30
-"""Reference count of slot 0 (the unknown tile): never freed, never written."""
+"""Reference count of slot 0, the unknown tile, which is never freed and never written."""
 
 STATUS_OK = 0
 STATUS_POOL_FULL = 1

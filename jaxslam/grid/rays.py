@@ -36,7 +36,7 @@ from jaxslam.core import se2
 from jaxslam.grid.map import GridSpec, flat_index
 
 ROW = 16
-"""Slots per layout row: a row holds ``ROW`` consecutive samples of one beam."""
+"""Slots per layout row (a row holds ``ROW`` consecutive samples of one beam)."""
 
 
 class BeamLayout(NamedTuple):

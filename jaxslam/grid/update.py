@@ -83,9 +83,9 @@ def update_grid(
     Args:
         grid: ``(H, W)`` int8 quantised log-odds.
         sensor_pose: ``(3,)`` pose of the laser (robot pose ⊕ laser offset).
-        lengths, hits: from :func:`beam_lengths`.
+        lengths, hits: from :func:`~jaxslam.grid.rays.beam_lengths`.
         angles: ``(B,)`` beam angles in the laser frame.
-        layout: from :func:`beam_layout` (same scan).
+        layout: from :func:`~jaxslam.grid.rays.beam_layout` (same scan).
         spec: static geometry.
         l_free, l_occ, l_max: log-odds steps (traced, rounded to integers).
     """
@@ -167,7 +167,7 @@ def update_grids(
     processed ``chunk_rows`` rows at a time and only as many chunks run as this scan
     needs (:func:`integrate_rays`), so a short scan does not pay for the
     ``max_points`` budget. The dense reference of the paged maps
-    (:func:`jaxslam.grid.paged_update.update_paged`).
+    (:func:`update_paged`).
 
     Returns:
         ``(grids, dropped)`` where ``dropped`` counts ray samples past the budget.
@@ -187,7 +187,7 @@ def update_grids(
 def touched_tiles(rays: ScanRays, x0: Array, y0: Array, side: int, layout: PagedLayout) -> Array:
     """``(P, side * side)`` bool: the window tiles that one scan's cells fall in.
 
-    A row of :data:`ROW` consecutive cells of one beam (``ROW`` < tile size) spans at
+    A row of :data:`~jaxslam.grid.rays.ROW` consecutive cells of one beam (``ROW`` < tile size) spans at
     most two tile columns and two tile rows; marking the tiles of its first and last
     cell and of their two corner combinations covers every tile it touches (and at
     most one it only passes by, which then gets a slot it does not need). Hit cells are

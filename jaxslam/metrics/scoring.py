@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 NEES_EXPECTED = 3.0
-"""Expected pose NEES of a consistent filter: the pose has 3 degrees of freedom."""
+"""Expected pose NEES of a consistent filter (the pose has 3 degrees of freedom)."""
 
 MIN_MATCHED_FRACTION = 0.9
 """Below this share of the relations (or GPS fixes) scored, ``jaxslam evaluate`` warns

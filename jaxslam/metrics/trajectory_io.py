@@ -1,6 +1,6 @@
 """Planar trajectories: SE(2) algebra in NumPy, TUM files, and a pose for every scan.
 
-SE(2) poses are ``(x, y, theta)`` rows. Composition and its inverse:
+SE(2) poses are ``(x, y, theta)`` rows. Composition and its inverse::
 
     a (+) b = (x_a + cos(t_a) x_b - sin(t_a) y_b,
                y_a + sin(t_a) x_b + cos(t_a) y_b,

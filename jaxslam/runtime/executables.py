@@ -69,7 +69,7 @@ def function_name(fn) -> str | None:
     up again (the module in ``sys.modules``, then the attributes along the qualified
     name) gives ``fn`` itself: a function defined inside another (``<locals>``), a
     lambda, a copy under a borrowed name or anything outside ``jaxslam`` has none. A
-    :class:`functools.partial` is named by its function and the ``repr`` of its bound
+    ``functools.partial`` is named by its function and the ``repr`` of its bound
     arguments, when those are named and print no address. Nothing here iterates
     ``sys.modules`` or a module's namespace, which another thread may be importing
     into (the plotting prefetch, :func:`jaxslam.app.outputs.prefetch_plotting`).

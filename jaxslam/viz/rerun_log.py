@@ -151,8 +151,9 @@ class RerunLog:
         self.stream.log("world/landmarks/ellipses", rr.LineStrips3D(strips, colors=[0, 170, 0], radii=0.02))
 
     def landmark_callback(self, times: np.ndarray, offset: int = 0):
-        """A ``callback(carry, steps_done)`` for :func:`run_landmark_slam`: particles and
-        the best particle's landmarks after each chunk."""
+        """A ``callback(carry, steps_done)`` for
+        :func:`~jaxslam.feature.experiment.run_landmark_slam`: particles and the best
+        particle's landmarks after each chunk."""
 
         from jaxslam.runtime.driver import best_particle
 
@@ -205,14 +206,14 @@ class GridLiveLog:
     for every keyframe of the chunk, the particles, ESS and resampling and the scan at
     the best lineage's pose, then the best particle's path and map. It writes no
     checkpoint file. The keyframes are the filter's own (``Info.keyframe``), collected
-    in :attr:`keyframes` as the run goes. The laser mount and the log-odds unit come
+    in its ``keyframes`` array (scan indices) as the run goes. The laser mount and the log-odds unit come
     from the run's parameters (the second half of the carry), the map layout from
     ``static["layout"]`` (set by :func:`jaxslam.grid.driver.run_filter` before each
     stretch of the run).
 
     Args:
         viz: the :class:`RerunLog`.
-        log: the :class:`CarmenLog` being run (scans, stamps, beam angles).
+        log: the :class:`~jaxslam.datasets.carmen.CarmenLog` being run (scans, stamps, beam angles).
         every: scans per chunk (map updates).
     """
 
