@@ -47,6 +47,21 @@ def effective_sample_size(log_weights: Array) -> Array:
     return jnp.exp(-logsumexp(2.0 * normalized))
 
 
+def log_likelihood_increment(log_weights: Array, log_weight_increments: Array) -> Array:
+    r"""The filter's estimate of the step's log-likelihood,
+
+    .. math:: \log \hat p(z_t \mid z_{1:t-1}) = \log \sum_m \bar w^{[m]}_{t-1}\, g^{[m]}_t,
+
+    from the log-weights before the step (normalised here: :math:`\bar w`) and each
+    particle's log weight increment :math:`\log g^{[m]}_t`. Summed over the steps it is
+    :math:`\log \hat Z`, the particle estimate of the log marginal likelihood. NaN
+    increments count as ``-inf``; if every increment is ``-inf`` the result is
+    ``-inf``, never NaN.
+    """
+    clean = jnp.where(jnp.isnan(log_weight_increments), -jnp.inf, log_weight_increments)
+    return logsumexp(normalize_log_weights(log_weights) + clean)
+
+
 def _cdf(log_weights: Array) -> Array:
     weights = jnp.exp(normalize_log_weights(log_weights))
     cdf = jnp.cumsum(weights)

@@ -363,7 +363,7 @@ def run_grid_slam(
     unit = float(prm.log_odds_unit)
     params_record = {k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"}
     state, ys, cfg, stats = run_filter(
-        module.scan_step, seed_key(seed), prm, cfg, first, np.asarray(odom[0], real), controls,
+        module.step, seed_key(seed), prm, cfg, first, np.asarray(odom[0], real), controls,
         observations, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress,
         checkpoint=checkpoint, unit="scan",
     )

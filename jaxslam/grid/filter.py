@@ -29,7 +29,12 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
+from jaxslam.core.resampling import (
+    effective_sample_size,
+    log_likelihood_increment,
+    normalize_log_weights,
+    selective_resample,
+)
 from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.closure import MEMORY
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
@@ -212,6 +217,7 @@ def finish_step(
     maps, dropped, status = integrate_scan(state.maps, map_poses + tie, observation, params, config)
     applied = status.code == 0
     ess = effective_sample_size(log_weights)
+    increment = log_likelihood_increment(state.log_weights, params.weight_gain * log_likelihoods)
     ancestors, resampled, new_log_weights = selective_resample(
         key, log_weights, params.resample_threshold, config.resampler
     )
@@ -251,6 +257,7 @@ def finish_step(
         track_closed=jnp.asarray(False),
         track_conflict=jnp.zeros((), log_weights.dtype),
         track_undo=jnp.zeros((4,), log_weights.dtype),
+        log_likelihood_increment=jnp.where(applied, increment, 0.0),
     )
     return new_state, info
 
@@ -278,6 +285,7 @@ def empty_info(state: GridSlamState, config: GridSlamConfig) -> GridSlamInfo:
         track_closed=jnp.asarray(False),
         track_conflict=zero,
         track_undo=jnp.zeros((4,), dtype),
+        log_likelihood_increment=zero,
     )
 
 

@@ -145,11 +145,14 @@ def _step(
     )
 
 
-step = guard(_step)
+# The filter's step, the one ``jaxslam run`` runs: every scan a step, tracked against
+# the best particle's map, with the keyframe update where the keyframe rule on the
+# tracked motion fires (jaxslam.grid.tracking.per_scan). ``keyframe_step`` is the
+# keyframe update alone, for keyframe inputs chosen on the host.
+keyframe_step = guard(_step)
+keyframe_run = scan_runner(keyframe_step)
+step = guard(per_scan(_step))
 run = scan_runner(step)
-# Every scan a step, keyframes decided on the tracked motion (jaxslam.grid.tracking).
-scan_step = guard(per_scan(_step))
-scan_run = scan_runner(scan_step)
 
 
-__all__ = ["correct_pose", "init", "run", "scan_run", "scan_step", "step"]
+__all__ = ["correct_pose", "init", "keyframe_run", "keyframe_step", "run", "step"]

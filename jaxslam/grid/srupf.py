@@ -67,6 +67,7 @@ import jax.numpy as jnp
 from jax import Array
 from jax.scipy.linalg import cho_solve
 
+from jaxslam.base import sample_pose
 from jaxslam.core import se2
 from jaxslam.core.sigma import UTParams
 from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
@@ -128,6 +129,12 @@ def sqrt_measurement_update(prediction: Prediction, nu: Array, match_noise_sqrt:
     return MeasurementUpdate(nu, sqrt_cov, gain, s_nu, ok)
 
 
+def best_sigma_point(prediction: Prediction, score) -> Array:
+    """Eq. (10), the pose without a corrector: the propagated sigma point that
+    ``score`` (``(M, 3) -> (M,)``, larger is better) ranks first."""
+    return prediction.propagated[jnp.argmax(score(prediction.propagated))]
+
+
 def ut_params(params: GridSlamParams) -> UTParams:
     return UTParams(params.ut_alpha, params.ut_beta, params.ut_kappa)
 
@@ -178,8 +185,7 @@ def particle_update(
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
     key_prior, key_post = jax.random.split(key)
     if config.sampling == "prior":
-        start = prediction.mean + prediction.sqrt_cov @ jax.random.normal(key_prior, (3,), dtype)
-        start = start.at[2].set(se2.wrap_angle(start[2]))
+        start = sample_pose(key_prior, prediction.mean, prediction.sqrt_cov)
     elif config.sampling == "posterior":
         start = prediction.mean
     else:
@@ -202,8 +208,7 @@ def particle_update(
         accept = best_score / count > params.min_score
         nu = jnp.where(accept, best, start)
     elif config.correction == "npc":
-        scores = score_fn(prediction.propagated)
-        nu = prediction.propagated[jnp.argmax(scores)]
+        nu = best_sigma_point(prediction, score_fn)
     else:
         raise ValueError(f"correction must be 'pc' or 'npc', got {config.correction!r}")
     update = sqrt_measurement_update(prediction, nu, jnp.diag(params.match_noise.astype(dtype)))
@@ -211,8 +216,7 @@ def particle_update(
         read, nu, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
     )
     if config.sampling == "posterior":
-        next_pose = nu + update.sqrt_cov @ jax.random.normal(key_post, (3,), dtype)
-        next_pose = next_pose.at[2].set(se2.wrap_angle(next_pose[2]))
+        next_pose = sample_pose(key_post, nu, update.sqrt_cov)
     else:
         next_pose = nu
     return nu, next_pose, update.sqrt_cov, score / count, log_lik, update.pd_ok
@@ -258,11 +262,17 @@ def _step(
     )
 
 
-step = guard(_step)
+# The filter's step, the one ``jaxslam run`` runs: every scan a step, tracked against
+# the best particle's map, with the keyframe update where the keyframe rule on the
+# tracked motion fires (jaxslam.grid.tracking.per_scan). ``keyframe_step`` is the
+# keyframe update alone, for keyframe inputs chosen on the host.
+keyframe_step = guard(_step)
+keyframe_run = scan_runner(keyframe_step)
+step = guard(per_scan(_step))
 run = scan_runner(step)
-# Every scan a step, keyframes decided on the tracked motion (jaxslam.grid.tracking).
-scan_step = guard(per_scan(_step))
-scan_run = scan_runner(scan_step)
 
 
-__all__ = ["MeasurementUpdate", "init", "particle_update", "predict", "run", "sqrt_measurement_update", "step"]
+__all__ = [
+    "MeasurementUpdate", "best_sigma_point", "init", "keyframe_run", "keyframe_step", "particle_update", "predict", "run",
+    "sqrt_measurement_update", "step",
+]

@@ -236,11 +236,15 @@ def test_scan_trajectory_composes_keyframe_poses_and_motion():
     np.testing.assert_allclose(trajectory, np.array(expected), atol=1e-12)
 
 
-def test_scan_step_of_each_filter_is_exported():
+def test_each_filter_steps_every_scan_and_keeps_its_keyframe_update():
+    """A grid filter's ``step`` is the per-scan step (:func:`per_scan` of its keyframe
+    update), the one ``run_grid_slam`` runs; ``keyframe_step`` is that update alone."""
     from jaxslam.grid import gmapping
 
     for module in (gmapping, srupf):
-        assert callable(module.scan_step) and callable(module.scan_run)
+        assert module.step.__wrapped__.__name__ == "scan_step"
+        assert module.keyframe_step.__wrapped__ is module._step
+        assert callable(module.run) and callable(module.keyframe_run)
 
 
 def test_keyframe_correction_moves_only_along_constrained_directions(sim):
