@@ -21,7 +21,7 @@ import argparse
 import numpy as np
 from grid_common import RESULTS, machine_info, raw_scan_indices, robot_poses, save_json
 
-from jaxslam.datasets.carmen import load_dataset_log
+from jaxslam.datasets.registry import load_dataset_log
 from jaxslam.datasets.geometry import se2_compose, se2_inverse
 from jaxslam.metrics.relations import load_dataset_relations, relations_metric
 from jaxslam.metrics.trajectory_io import interpolate_poses

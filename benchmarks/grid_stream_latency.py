@@ -29,7 +29,7 @@ import jax
 import numpy as np
 from _common import print_table, write_json
 
-from jaxslam.datasets.carmen import load_dataset_log
+from jaxslam.datasets.registry import load_dataset_log
 from jaxslam.grid.experiment import keyframe_rule, run_grid_slam
 from jaxslam.grid.stream import StreamingGridSlam
 

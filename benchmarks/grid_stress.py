@@ -263,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.merge:
         return merge(args.merge, args.tag)
 
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.metrics.relations import DATASET_RELATIONS, load_dataset_relations
 
     if args.log not in DATASET_RELATIONS:

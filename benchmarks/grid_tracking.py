@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _common import print_table, write_json  # noqa: E402
 
-from jaxslam.datasets.carmen import load_dataset_log  # noqa: E402
+from jaxslam.datasets.registry import load_dataset_log  # noqa: E402
 from jaxslam.grid.experiment import run_grid_slam  # noqa: E402
 from jaxslam.metrics.relations import load_dataset_relations, relations_metric  # noqa: E402
 

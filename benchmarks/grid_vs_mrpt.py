@@ -5,7 +5,7 @@ Usage:
         [--skip-jaxslam] [--mrpt-algorithm 3] [--seed 0] [--workdir DIR]
 
 Both systems get exactly the same scans: the raw Intel log is read once with
-:func:`jaxslam.datasets.carmen.load_dataset_log` (file order, beams at -90 .. +89 deg,
+:func:`jaxslam.datasets.registry.load_dataset_log` (file order, beams at -90 .. +89 deg,
 readings >= 80 m invalid) and handed to MRPT through ``benchmarks/mrpt/scans2rawlog``,
 a small C++ tool (built here on first use) that writes an MRPT rawlog in the
 actions / sensory-frames format ``rbpf-slam`` reads: MRPT 2.5's own
@@ -54,7 +54,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import RESULTS, print_table, write_json
 
-from jaxslam.datasets.carmen import CarmenLog, load_dataset_log
+from jaxslam.datasets.carmen import CarmenLog
+from jaxslam.datasets.registry import load_dataset_log
 from jaxslam.metrics.relations import (
     load_dataset_relations,
     relation_errors,

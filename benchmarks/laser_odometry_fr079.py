@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 def main(argv=None) -> int:
     from _common import print_table, write_json
 
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.datasets.geometry import se2_between, se2_compose, wrap_angle
     from jaxslam.grid.laser_odometry import LaserOdometryConfig, laser_heading_increments
 

@@ -53,7 +53,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
 
-    from jaxslam.datasets import carmen, victoria_park
+    from jaxslam.datasets import carmen, registry, victoria_park
 
     rows = []
     for name in args.datasets:
@@ -66,9 +66,9 @@ def main() -> None:
         slow = fast = None
         for _ in range(args.repeats):
             with mock.patch.object(carmen, "_read_lines_fast", lambda *a: None):
-                seconds, slow = _timed(lambda: carmen.load_dataset_log(name))
+                seconds, slow = _timed(lambda: registry.load_dataset_log(name))
             slow_times.append(seconds)
-            seconds, fast = _timed(lambda: carmen.load_dataset_log(name))
+            seconds, fast = _timed(lambda: registry.load_dataset_log(name))
             fast_times.append(seconds)
         line_s, bulk_s = statistics.median(slow_times), statistics.median(fast_times)
         rows.append({"dataset": name, "scans": fast.num_scans, "line_reader_s": line_s, "bulk_reader_s": bulk_s,

@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.datasets.carmen import CarmenLog, load_dataset_log, select_keyframes
-from jaxslam.datasets.registry import algorithms
+from jaxslam.datasets.carmen import CarmenLog, select_keyframes
+from jaxslam.datasets.registry import algorithms, load_dataset_log
 from jaxslam.grid import gmapping, srupf
 from jaxslam.grid.driver import DEFAULT_CHUNK, recompilations, run_filter
 from jaxslam.grid.filter import best_particle
@@ -273,7 +273,7 @@ def run_grid_slam(
 
     Args:
         log_or_sim: a :class:`CarmenLog` (or :class:`SimulatedLog`), a dataset name
-            known to :func:`jaxslam.datasets.carmen.load_dataset_log`, or a path.
+            known to :func:`jaxslam.datasets.registry.load_dataset_log`, or a path.
         algorithm: ``"srupf-gm"`` (pose correction), ``"srupf-gm-npc"`` or
             ``"gmapping"``.
         particles: number of particles.

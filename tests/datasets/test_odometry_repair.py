@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxslam.datasets.carmen import load_carmen, load_dataset_log
+from jaxslam.datasets.carmen import load_carmen
+from jaxslam.datasets.registry import load_dataset_log
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_exp, se2_log
 from jaxslam.datasets.odometry_repair import interval_speeds, repair_reverse_odometry, repair_stale_odometry
 from jaxslam.datasets.paths import DatasetNotFoundError
