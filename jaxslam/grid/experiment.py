@@ -211,7 +211,7 @@ def closure_default(algorithm: str) -> bool:
 def coarse_default(algorithm: str) -> int:
     """The coarse-to-fine match's wide climbs by default (``config.coarse_iterations``,
     :func:`jaxslam.grid.filter.coarse_start`): 4 for SRUPF-GM, measured over the whole
-    robustness suite (``docs/results.md``, suites v5.19-v5.20); 0 for the other filters,
+    robustness suite (``benchmarks/grid_robustness.py``); 0 for the other filters,
     which it was not measured on."""
     return 4 if algorithm == "srupf-gm" else 0
 
@@ -221,7 +221,7 @@ def recover_default(algorithm: str) -> float:
     :mod:`jaxslam.grid.recovery`): :data:`~jaxslam.grid.recovery.RECOVER_RADIUS` for
     SRUPF-GM, with its wider proposals after refused matches
     (:func:`jaxslam.grid.types.refused_noise_default`), measured together over the
-    whole robustness suite (``docs/results.md``, suite v5.23); 0 (off) for the other
+    whole robustness suite (``benchmarks/grid_robustness.py``); 0 (off) for the other
     filters, which they were not measured on."""
     return RECOVER_RADIUS if algorithm == "srupf-gm" else 0.0
 

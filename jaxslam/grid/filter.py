@@ -77,12 +77,9 @@ def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: Gr
     poses within ``coarse_radius`` standard deviations of the prediction) the wide
     climb skips every candidate outside it, as the matcher does. Unbounded, the wide
     climbs answer to no motion model and can hand the matcher a start it would never
-    have reached itself (perturbed CSAIL, seed 4: a turn of 0.51 rad, right in the
-    odometry, matched as 0.16 rad; bounded, the run scores as the others:
-    ``docs/results.md``, "Suite v5.21"). Measured over the
-    whole robustness suite; SRUPF-GM's default since
-    (:func:`jaxslam.grid.experiment.coarse_default`): ``docs/results.md``, "Suite
-    v5.19" and "Suite v5.20".
+    have reached itself (a turn of 0.51 rad that the odometry had right, matched as
+    0.16 rad). SRUPF-GM's default (:func:`jaxslam.grid.experiment.coarse_default`),
+    measured over the robustness suite (``benchmarks/grid_robustness.py``).
     """
     if not config.coarse_iterations:
         return pose

@@ -251,7 +251,7 @@ def test_real_logs_stale_stretches():
 def test_the_perturbed_logs_have_no_stale_stretch(tmp_path):
     """The suite's perturbed logs (seed 0 of each, both levels) give the repair nothing
     to do, so their runs are those from before it (seeds 0-19 high and 0-9 low were
-    checked once by hand, session 71)."""
+    checked by hand against the log)."""
     from jaxslam.datasets.perturb import CORRECTED_LOGS, make_perturbed_log
 
     try:
