@@ -113,3 +113,19 @@ def test_import_jaxslam_does_not_import_jax():
 
     code = "import sys, jaxslam; assert 'jax' not in sys.modules; jaxslam.ParticleFilter; assert 'jax' in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_every_public_name_resolves():
+    """The package root and every subpackage declare ``__all__``, and each name in it
+    is an attribute or a submodule."""
+    import importlib
+
+    for package in ("jaxslam", "jaxslam.app", "jaxslam.calibrate", "jaxslam.core", "jaxslam.datasets",
+                    "jaxslam.feature", "jaxslam.grid", "jaxslam.metrics", "jaxslam.models", "jaxslam.runtime",
+                    "jaxslam.viz"):
+        module = importlib.import_module(package)
+        assert module.__all__, package
+        for name in module.__all__:
+            if package == "jaxslam.viz":  # the optional extra: listed, not imported here
+                continue
+            assert hasattr(module, name) or importlib.import_module(f"{package}.{name}"), (package, name)
