@@ -39,7 +39,7 @@ from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.closure import MEMORY
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.matching import gmapping_basis, hill_climb
-from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn
+from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn, scan_log_likelihood
 from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
 from jaxslam.grid.update import update_paged
 
@@ -52,6 +52,23 @@ def scan_angles(observation: Scan, params: GridSlamParams) -> Array:
 def score_model(params: GridSlamParams) -> ScoreModel:
     """The traced score settings of ``params``."""
     return ScoreModel(params.occ_saturation, params.score_sigma, params.likelihood_floor)
+
+
+def scan_score_fn(read, local_points: Array, mask: Array, params: GridSlamParams, config: GridSlamConfig):
+    """The match score ``(M, 3) -> (M,)`` of poses against the map of ``read``
+    (:func:`jaxslam.grid.score.make_score_fn` with the params' score model and the
+    config's kernel): the sum of the beams' weighted evidence."""
+    return make_score_fn(read, local_points, mask, params.laser_offset, config.layout, score_model(params),
+                         config.score_kernel, config.free_check)
+
+
+def scan_likelihood(read, pose: Array, local_points: Array, mask: Array, params: GridSlamParams,
+                    config: GridSlamConfig) -> tuple[Array, Array]:
+    """``(log p(z | pose, map), score)`` of one pose
+    (:func:`jaxslam.grid.score.scan_log_likelihood` under the same model as
+    :func:`scan_score_fn`)."""
+    return scan_log_likelihood(read, pose, local_points, mask, params.laser_offset, config.layout,
+                               score_model(params), config.score_kernel, config.free_check)
 
 
 def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: GridSlamParams,
@@ -321,6 +338,8 @@ __all__ = [
     "particle_reader",
     "reset_status",
     "scan_angles",
+    "scan_likelihood",
+    "scan_score_fn",
     "score_model",
     "usable_range",
 ]

@@ -26,29 +26,11 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.runtime.driver import scan_runner
-from jaxslam.grid.filter import (
-    coarse_start,
-    finish_step,
-    guard,
-    init,
-    match_geometry,
-    particle_reader,
-    score_model,
-)
-from jaxslam.grid.types import (
-    GridSlamConfig,
-    GridSlamInfo,
-    GridSlamParams,
-    GridSlamState,
-    Odometry,
-    Scan,
-    as_odometry,
-    noise_scale_of,
-)
+from jaxslam.grid.filter import finish_step, guard, init, match_geometry, particle_reader, scan_likelihood, scan_score_fn
+from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Odometry, Scan
+from jaxslam.grid.types import as_odometry, noise_scale_of
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.matching import get_matcher, search_bound
-from jaxslam.grid.score import make_score_fn, scan_log_likelihood
-from jaxslam.grid.tracking import constrained_pose, per_scan
+from jaxslam.grid.tracking import keyframe_match, per_scan
 from jaxslam.models.odometry import sample_gmapping
 
 
@@ -67,24 +49,10 @@ def correct_pose(
         ``(pose, score, log_likelihood)``; ``score`` is the mean occupancy over the
         matched beams (in ``[0, 1]``).
     """
-    model = score_model(params)
-    kernel = config.score_kernel
-    score_fn = make_score_fn(
-        read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
-    matcher = get_matcher(config.matcher)
-    start = coarse_start(read, local_points, mask, pose, params, config,
-                         search_bound(config.matcher, pose, pose_sqrt_cov, params, params.coarse_radius))
-    best, best_score = matcher(score_fn, start, pose_sqrt_cov, params, config.match_iterations, config.refine_steps)
-    count = jnp.maximum(jnp.sum(mask), 1).astype(pose.dtype)
-    if config.constrain_matches:
-        best = constrained_pose(score_fn, best, pose, best_score, count, params)
-    log_lik_best, score_best = scan_log_likelihood(
-        read, best, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
-    log_lik_init, score_init = scan_log_likelihood(
-        read, pose, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
+    score_fn = scan_score_fn(read, local_points, mask, params, config)
+    best, _, count = keyframe_match(score_fn, read, local_points, mask, pose, pose, pose_sqrt_cov, params, config)
+    log_lik_best, score_best = scan_likelihood(read, best, local_points, mask, params, config)
+    log_lik_init, score_init = scan_likelihood(read, pose, local_points, mask, params, config)
     accept = score_best / count > params.min_score
     return (
         jnp.where(accept, best, pose),

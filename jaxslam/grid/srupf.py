@@ -72,29 +72,11 @@ from jaxslam.core import se2
 from jaxslam.core.sigma import UTParams
 from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
 from jaxslam.runtime.driver import scan_runner
-from jaxslam.grid.filter import (
-    coarse_start,
-    finish_step,
-    guard,
-    init,
-    match_geometry,
-    particle_reader,
-    score_model,
-)
-from jaxslam.grid.types import (
-    GridSlamConfig,
-    GridSlamInfo,
-    GridSlamParams,
-    GridSlamState,
-    Odometry,
-    Scan,
-    as_odometry,
-    noise_scale_of,
-)
+from jaxslam.grid.filter import finish_step, guard, init, match_geometry, particle_reader, scan_likelihood, scan_score_fn
+from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Odometry, Scan
+from jaxslam.grid.types import as_odometry, noise_scale_of
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.matching import get_matcher, search_bound
-from jaxslam.grid.score import make_score_fn, scan_log_likelihood
-from jaxslam.grid.tracking import constrained_pose, per_scan
+from jaxslam.grid.tracking import keyframe_match, per_scan
 from jaxslam.models.odometry import (
     Prediction,
     motion_noise_sqrt,
@@ -177,11 +159,7 @@ def particle_update(
     """
     dtype = pose.dtype
     prediction = predict(pose, pose_sqrt_cov, control, params, noise_scale)
-    model = score_model(params)
-    kernel = config.score_kernel
-    score_fn = make_score_fn(
-        read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
+    score_fn = scan_score_fn(read, local_points, mask, params, config)
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
     key_prior, key_post = jax.random.split(key)
     if config.sampling == "prior":
@@ -191,20 +169,8 @@ def particle_update(
     else:
         raise ValueError(f"sampling must be 'prior' or 'posterior', got {config.sampling!r}")
     if config.correction == "pc":
-        matcher = get_matcher(config.matcher)
-        best, best_score = matcher(
-            score_fn,
-            coarse_start(read, local_points, mask, start, params, config,
-                         search_bound(config.matcher, prediction.mean, prediction.sqrt_cov, params,
-                                      params.coarse_radius)),
-            prediction.sqrt_cov,
-            params,
-            config.match_iterations,
-            config.refine_steps,
-            prior_mean=prediction.mean,
-        )
-        if config.constrain_matches:
-            best = constrained_pose(score_fn, best, start, best_score, count, params)
+        best, best_score, _ = keyframe_match(score_fn, read, local_points, mask, start, prediction.mean,
+                                             prediction.sqrt_cov, params, config, prior_mean=prediction.mean)
         accept = best_score / count > params.min_score
         nu = jnp.where(accept, best, start)
     elif config.correction == "npc":
@@ -212,9 +178,7 @@ def particle_update(
     else:
         raise ValueError(f"correction must be 'pc' or 'npc', got {config.correction!r}")
     update = sqrt_measurement_update(prediction, nu, jnp.diag(params.match_noise.astype(dtype)))
-    log_lik, score = scan_log_likelihood(
-        read, nu, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
+    log_lik, score = scan_likelihood(read, nu, local_points, mask, params, config)
     if config.sampling == "posterior":
         next_pose = sample_pose(key_post, nu, update.sqrt_cov)
     else:

@@ -133,10 +133,9 @@ from jaxslam.datasets.geometry import se2_compose
 from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.closure import close_loop, record_applied
 from jaxslam.grid.undone_closures import take_back
-from jaxslam.grid.filter import coarse_start, empty_info, match_geometry, particle_reader, score_model
-from jaxslam.grid.matching import hill_climb_match
+from jaxslam.grid.filter import coarse_start, empty_info, match_geometry, particle_reader, scan_score_fn
+from jaxslam.grid.matching import get_matcher, hill_climb_match, search_bound
 from jaxslam.grid.recovery import recover
-from jaxslam.grid.score import make_score_fn
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
 
 
@@ -156,10 +155,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
-    score_fn = make_score_fn(
-        read, local_points, mask, params.laser_offset, config.layout, score_model(params),
-        config.score_kernel, config.free_check,
-    )
+    score_fn = scan_score_fn(read, local_points, mask, params, config)
     # A turn the odometry missed (FR079's doorways: up to 10 deg per scan) can lie beyond
     # the hill climb's reach. If the guess turned by +-track_turn already scores above
     # the converged match, that match is stuck: climb again from the better turned start.
@@ -209,6 +205,28 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
         memory = record_applied(memory, taken, se2.compose(pose, se2.inverse(local)))
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
     return motion, score, accepted, closed, conflict, memory, undo
+
+
+def keyframe_match(score_fn, read, local_points: Array, mask: Array, start: Array, center: Array,
+                   sqrt_cov: Array, params: GridSlamParams, config: GridSlamConfig,
+                   prior_mean: Array | None = None) -> tuple[Array, Array, Array]:
+    """The keyframe corrector of both filters for one particle: the coarse stage
+    (:func:`jaxslam.grid.filter.coarse_start`, within ``coarse_radius`` of ``center``
+    for a bounded matcher), the config's matcher from there, and with
+    ``config.constrain_matches`` :func:`constrained_pose` from ``start``.
+
+    Returns:
+        ``(pose, score, count)``: the match, its raw score (a sum over the beams) and
+        the number of matched beams (at least 1).
+    """
+    bound = search_bound(config.matcher, center, sqrt_cov, params, params.coarse_radius)
+    first = coarse_start(read, local_points, mask, start, params, config, bound)
+    best, best_score = get_matcher(config.matcher)(score_fn, first, sqrt_cov, params, config.match_iterations,
+                                                   config.refine_steps, prior_mean=prior_mean)
+    count = jnp.maximum(jnp.sum(mask), 1).astype(start.dtype)
+    if config.constrain_matches:
+        best = constrained_pose(score_fn, best, start, best_score, count, params)
+    return best, best_score, count
 
 
 def constrained_pose(score_fn, matched: Array, start: Array, score: Array, count: Array,
@@ -395,7 +413,7 @@ def scan_trajectory(first_pose: np.ndarray, keyframe_flags: np.ndarray, keyframe
 
 
 __all__ = [
-    "constrained_pose", "constrained_shift", "is_keyframe", "per_scan", "scan_trajectory", "track",
+    "constrained_pose", "constrained_shift", "is_keyframe", "keyframe_match", "per_scan", "scan_trajectory", "track",
     "keyframe_noise_scale",
     "tracked_noise_scale",
 ]
