@@ -27,18 +27,9 @@ import jax.numpy as jnp
 from jax import Array
 from jax.scipy.special import logsumexp
 
+from jaxslam.core.numerics import normalize_log_weights
+
 Resampler = Callable[[Array, Array], Array]
-
-
-def normalize_log_weights(log_weights: Array) -> Array:
-    """Log-weights that sum to one in linear space (uniform if all underflow or NaN)."""
-    clean = jnp.where(jnp.isnan(log_weights), -jnp.inf, log_weights)
-    total = logsumexp(clean)
-    degenerate = ~jnp.isfinite(total)
-    n = log_weights.shape[-1]
-    uniform = jnp.full_like(clean, -jnp.log(jnp.asarray(n, clean.dtype)))
-    safe_total = jnp.where(degenerate, 0.0, total)
-    return jnp.where(degenerate, uniform, clean - safe_total)
 
 
 def effective_sample_size(log_weights: Array) -> Array:

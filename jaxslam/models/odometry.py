@@ -51,6 +51,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.core import se2
+from jaxslam.core.numerics import safe_atan2, safe_sqrt
 from jaxslam.core.sigma import UTParams, sigma_points, ut_weights
 from jaxslam.core.sqrt import sqrt_ut_moments
 
@@ -105,13 +106,10 @@ def polar_increment(increment: Array) -> PolarIncrement:
     """
     dx, dy = increment[..., 0], increment[..., 1]
     backwards = dx < 0
-    length = jnp.sqrt(dx * dx + dy * dy)
+    length = safe_sqrt(dx * dx + dy * dy)  # finite gradients at zero motion
     length = jnp.where(backwards, -length, length)
-    # Double where: atan2(0, 0) has a NaN gradient, so feed a safe argument.
     moving = length != 0
-    sx = jnp.where(moving, jnp.where(backwards, -dx, dx), 1.0)
-    sy = jnp.where(moving, jnp.where(backwards, -dy, dy), 0.0)
-    bearing = jnp.where(moving, jnp.arctan2(sy, sx), 0.0)
+    bearing = safe_atan2(jnp.where(backwards, -dy, dy), jnp.where(backwards, -dx, dx), defined=moving)
     return PolarIncrement(length, increment[..., 2], bearing)
 
 
