@@ -309,7 +309,7 @@ def part_grid(args) -> dict:
     import dataclasses as dc
 
     from jaxslam.calibrate import grid as G
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.datasets.registry import lookup
     from jaxslam.grid.experiment import run_grid_slam
     from jaxslam.grid.types import default_params

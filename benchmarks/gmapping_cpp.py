@@ -333,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=None, help="write the per-scan trajectory as TUM here")
     args = parser.parse_args(argv)
     sys.path.insert(0, str(ROOT))
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.metrics.relations import DATASET_RELATIONS, load_dataset_relations, relations_metric
 
     log = load_dataset_log(args.log)

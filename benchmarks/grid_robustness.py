@@ -107,7 +107,7 @@ def worker(spec: dict) -> dict:
     log = spec["log"]
     laser = spec.get("laser_odometry")
     if laser is not None:
-        from jaxslam.datasets.carmen import load_dataset_log
+        from jaxslam.datasets.registry import load_dataset_log
         from jaxslam.grid.laser_odometry import LaserOdometryConfig, laser_corrected_log
 
         log = laser_corrected_log(load_dataset_log(log), LaserOdometryConfig(**laser))
@@ -289,7 +289,7 @@ def score_benchmark(bench, trajectory) -> dict[str, Any]:
 # ---------------------------------------------------------------------------
 def prepare_logs(args, work: Path) -> list[dict]:
     """Each entry: name, source (name or path for run_grid_slam), path, relations, short mask, seeds."""
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.datasets.perturb import make_perturbed_log
     from jaxslam.metrics.relations import DATASET_RELATIONS, load_dataset_relations
 

@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     })
     print(f"wrote {out}")
     if args.draw:
-        from jaxslam.datasets.carmen import load_dataset_log
+        from jaxslam.datasets.registry import load_dataset_log
 
         log = load_dataset_log(args.draw)
         folder = out.parent / "path_agreement_maps" / (args.name or "default")

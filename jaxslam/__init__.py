@@ -3,6 +3,81 @@
 Every particle and every sigma point is a row of a batched array, pushed through
 ``jit``/``vmap``/``lax.scan`` kernels. See ``README.md`` for the algorithms and the
 papers they implement.
+
+The public API:
+
+* filters as values (:mod:`jaxslam.base`, :mod:`jaxslam.filters`): :class:`ParticleFilter`,
+  the factories :func:`srupf_gm`, :func:`srupf_gm_npc`, :func:`gmapping`,
+  :func:`erb_upf`, :func:`rb_upf`, and :func:`run`, which scans any filter; the
+  parts of a filter of one's own: :class:`MotionModel`, :class:`MeasurementModel`,
+  :func:`sample_pose`, :func:`reweight`, :class:`Info`;
+* whole runs on a dataset: :func:`run_grid_slam` (a CARMEN log, a ROS bag's scans or
+  the laser simulator) with :class:`GridSlamResult`, :func:`run_landmark_slam`
+  (Victoria Park or the landmark simulator) with :class:`LandmarkSlamResult`;
+* the grid filters' types (:class:`GridSlamConfig`, :class:`GridSlamParams`,
+  :class:`GridSlamState`, :class:`GridSlamInfo`, :class:`Odometry`, :class:`Scan`,
+  :func:`default_params`, :func:`make_config`) and the landmark filters'
+  (:class:`LandmarkConfig`, :class:`LandmarkParams`, :class:`LandmarkState`,
+  :class:`LandmarkInfo`, :class:`Observation`);
+* maps: :func:`save_map` (PGM + YAML and PNG).
+
+The names are imported on first use: the command line imports this package on every
+``jaxslam`` call, and importing JAX here would cost ``jaxslam --help`` a second.
 """
 
+from importlib import import_module
+
 __version__ = "0.1.0"
+
+_HOMES = {
+    "ParticleFilter": "jaxslam.base",
+    "InitFn": "jaxslam.base",
+    "StepFn": "jaxslam.base",
+    "MotionModel": "jaxslam.base",
+    "MeasurementModel": "jaxslam.base",
+    "Info": "jaxslam.base",
+    "run": "jaxslam.base",
+    "reweight": "jaxslam.base",
+    "sample_pose": "jaxslam.base",
+    "srupf_gm": "jaxslam.filters",
+    "srupf_gm_npc": "jaxslam.filters",
+    "gmapping": "jaxslam.filters",
+    "erb_upf": "jaxslam.filters",
+    "rb_upf": "jaxslam.filters",
+    "run_grid_slam": "jaxslam.grid.experiment",
+    "GridSlamResult": "jaxslam.grid.experiment",
+    "make_config": "jaxslam.grid.experiment",
+    "run_landmark_slam": "jaxslam.feature.experiment",
+    "LandmarkSlamResult": "jaxslam.feature.experiment",
+    "GridSlamConfig": "jaxslam.grid.types",
+    "GridSlamParams": "jaxslam.grid.types",
+    "GridSlamState": "jaxslam.grid.types",
+    "GridSlamInfo": "jaxslam.grid.types",
+    "Odometry": "jaxslam.grid.types",
+    "Scan": "jaxslam.grid.types",
+    "default_params": "jaxslam.grid.types",
+    "save_map": "jaxslam.grid.export",
+    "Observation": "jaxslam.feature.filter",
+}
+# The landmark filters' types, under names that say so.
+_RENAMED = {
+    "LandmarkConfig": ("jaxslam.feature.params", "Config"),
+    "LandmarkParams": ("jaxslam.feature.params", "Params"),
+    "LandmarkState": ("jaxslam.feature.filter", "State"),
+    "LandmarkInfo": ("jaxslam.feature.filter", "Info"),
+}
+
+__all__ = sorted([*_HOMES, *_RENAMED, "__version__"])
+
+
+def __getattr__(name: str):
+    if name in _HOMES:
+        return getattr(import_module(_HOMES[name]), name)
+    if name in _RENAMED:
+        module, attribute = _RENAMED[name]
+        return getattr(import_module(module), attribute)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted({*globals(), *__all__})

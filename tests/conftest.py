@@ -62,7 +62,7 @@ INTEL_GRID_OPTIONS = dict(particles=4, seed=3, max_keyframes=6, progress=False)
 def intel_segment():
     import dataclasses
 
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.datasets.paths import DatasetNotFoundError
 
     try:

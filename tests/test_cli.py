@@ -125,7 +125,7 @@ def test_run_simulated_landmarks_writes_outputs_then_evaluate_and_plot(tmp_path,
 
 
 def test_evaluate_relations_of_raw_odometry(tmp_path, capsys):
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.metrics.trajectory_io import write_tum
 
     log = load_dataset_log("intel")

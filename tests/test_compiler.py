@@ -181,7 +181,7 @@ def test_grid_runs_do_not_depend_on_xla_threads(tmp_path):
     ``XLA_FLAGS=--xla_cpu_parallel_codegen_split_count=32`` (XLA's split on two threads)
     this test fails on the project's 2-core machine (checked when it was written, jax
     0.10.2); 40 keyframes, or 16 particles and 100, gave the same bits either way."""
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.datasets.paths import DatasetNotFoundError
 
     try:

@@ -44,7 +44,7 @@ def test_signatures_and_vocabulary(algorithm):
     assert list(inspect.signature(module.init).parameters)[:3] == ["key", "params", "config"]
     if module is not feature_filter:
         assert module.init is grid_init
-    for field in ("ess", "resampled", "ancestors"):
+    for field in ("ess", "resampled", "ancestors", "log_likelihood_increment"):
         assert field in info_type._fields
     for field in ("log_weights", "cumulative_log_likelihood"):
         assert field in state_type._fields
@@ -146,3 +146,74 @@ def test_grid_cli_path_compiles_once_per_config(sim_log, algorithm):
     assert not np.array_equal(first.trajectory, second.trajectory)
     for info in (first.info, second.info):
         assert {"ess", "resampled"} <= set(info)  # ancestors are used for the path, then dropped
+
+
+# ------------------------------------------------------------------ jaxslam.run against the CLI's path
+
+import chex  # noqa: E402
+
+import jaxslam  # noqa: E402
+from jaxslam.grid.experiment import make_config, map_layout  # noqa: E402
+from jaxslam.grid.rays import required_points  # noqa: E402
+from jaxslam.grid.types import Odometry, Scan, default_params  # noqa: E402
+from jaxslam.metrics.trajectory_io import se2_between  # noqa: E402
+
+
+@pytest.mark.parametrize("algorithm", ["rb-upf", "erb-upf"])
+def test_landmark_filter_value_runs_as_the_cli(landmark_sequence, algorithm):
+    """``jaxslam.run(jaxslam.erb_upf(...))`` (and RB) gives the ``Info`` of every step
+    that ``run_landmark_slam``'s chunked runner gives, and its final state."""
+    seq = landmark_sequence
+    cli = run_landmark_slam(seq, algorithm, seed=3, particles=6, progress=False, config=LANDMARK_CONFIG, chunk=8,
+                            dtype=jnp.float64)
+    factory = jaxslam.erb_upf if algorithm == "erb-upf" else jaxslam.rb_upf
+    filt = factory(cli.config, feature_filter.cast_params(params_for(seq), jnp.float64))
+    observations = feature_filter.Observation(jnp.asarray(seq.observations), jnp.asarray(seq.obs_mask))
+    state = filt.init(jnp.zeros(3, jnp.float64))
+    final, infos = jax.jit(jaxslam.run, static_argnums=0)(filt, jax.random.PRNGKey(3), state,
+                                                          jnp.asarray(seq.controls), observations)
+    chex.assert_trees_all_close(infos._asdict(), cli.info, rtol=1e-9, atol=1e-9)
+    chex.assert_trees_all_close(final, cli.state, rtol=1e-9, atol=1e-9)
+    assert np.all(np.isfinite(cli.info["log_likelihood_increment"]))
+
+
+def grid_inputs(log, algorithm, particles=3, scans=60):
+    """A grid filter's config, params and inputs on the first ``scans`` scans of ``log``,
+    as :func:`jaxslam.grid.experiment.run_grid_slam` lays them out."""
+    odom = np.asarray(log.odom_poses[:scans])
+    ranges = np.where(log.valid[:scans], log.ranges[:scans], 0.0)
+    params = default_params(log.angles, log.laser_offset, num_particles=particles, dtype=jnp.float32,
+                            algorithm=algorithm, linear_update=0.5, angular_update=0.3)
+    layout = map_layout(log, np.arange(scans), 0.05, 10.0, particles, 20.0)
+    points = int(np.ceil(required_points(np.minimum(ranges, 20.0), log.valid[:scans], 0.05) / 1024) * 1024)
+    config = make_config(algorithm, particles, layout, log.num_beams, points, match_iterations=3)
+    real = np.float32
+    first = Scan(ranges[0].astype(real), np.asarray(log.valid[0]), np.asarray(0.0, real))
+    controls = Odometry(se2_between(odom[:-1], odom[1:]).astype(real), np.ones(scans - 1, real),
+                        np.diff(log.scan_times[:scans]).astype(real))
+    observations = Scan(ranges[1:].astype(real), np.asarray(log.valid[1:scans]), np.zeros(scans - 1, real))
+    return config, params, first, odom[0].astype(real), controls, observations
+
+
+GRID_FACTORIES = {"gmapping": (jaxslam.gmapping, gmapping), "srupf-gm": (jaxslam.srupf_gm, srupf),
+                  "srupf-gm-npc": (jaxslam.srupf_gm_npc, srupf)}
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("algorithm", sorted(GRID_FACTORIES))
+def test_grid_filter_value_runs_as_the_cli(sim_log, algorithm):
+    """``jaxslam.run(jaxslam.srupf_gm(...))`` (and the others) steps every scan as the
+    command line does (:func:`jaxslam.grid.driver.run_filter` of the module's ``step``,
+    the runner ``run_grid_slam`` uses): the same kept ``Info`` and the same final state."""
+    factory, module = GRID_FACTORIES[algorithm]
+    config, params, first, pose, controls, observations = grid_inputs(sim_log, algorithm)
+    key = jax.random.PRNGKey(5)
+    state, ys, cli_config, _ = grid_driver.run_filter(module.step, key, params, config, first, pose, controls,
+                                                      observations, progress=False, chunk=16, unit="scan")
+    assert cli_config == config  # no growth: both runs see the same layout
+    filt = factory(config, params)
+    final, infos = jax.jit(jaxslam.run, static_argnums=0)(filt, key, filt.init(first, pose), controls, observations)
+    assert int(final.status.code) == 0 and np.asarray(ys["keyframe"]).sum() > 3
+    chex.assert_trees_all_close(jax.vmap(grid_driver.summarise)(infos), dict(ys), rtol=1e-6, atol=1e-6)
+    chex.assert_trees_all_close(final, state, rtol=1e-6, atol=1e-6)
+    assert np.all(np.isfinite(np.asarray(infos.log_likelihood_increment)))

@@ -51,7 +51,7 @@ scan likelihood and through :math:`S_m` into :math:`Q` and, via the previous
 update's factor (recomputed here from the filter's own :math:`\nu`, treated as data,
 and carried through its resampling), into :math:`R`. The filter's particles, maps,
 weights and resampling are held fixed: the forward pass is the filter's own
-(``srupf.scan_step``, unchanged), and the gradient is the conditional one given the
+(``srupf.step``, unchanged), and the gradient is the conditional one given the
 particle system, not the derivative of how the particles would move (each Adam step
 runs the filter again at the new levels).
 
@@ -169,7 +169,7 @@ def differentiable_scan_step(
     key: Array, carry: Carry, control: Odometry | Array, observation: Scan, params: GridSlamParams,
     config: GridSlamConfig, samples: int = 4,
 ) -> tuple[Carry, Array]:
-    """One scan of SRUPF-GM's per-scan step (``srupf.scan_step``, unchanged, on
+    """One scan of SRUPF-GM's per-scan step (``srupf.step``, unchanged, on
     stop-gradient inputs) and, at a keyframe, the predictive log-likelihood of its scan
     (0 elsewhere). Carries the pose factors again, differentiably: the filter's
     measurement update (eqs. 11-16) recomputed from its corrected poses, gathered by its
@@ -177,7 +177,7 @@ def differentiable_scan_step(
     fixed = jax.lax.stop_gradient(carry.state)
     fixed_params = jax.lax.stop_gradient(params)
     control = as_odometry(control)
-    state, info = srupf.scan_step(key, fixed, control, observation, fixed_params, config)
+    state, info = srupf.step(key, fixed, control, observation, fixed_params, config)
     # The prediction before the scan is seen: the motion tracked up to the previous scan
     # and this scan's odometry. (With tracking the filter's own keyframe control has
     # also matched this scan, so a likelihood of the scan under it would not be

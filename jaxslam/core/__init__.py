@@ -1,10 +1,12 @@
-"""Pure math on batched arrays: sigma points, square-root factors, resampling, SE(2).
-No SLAM vocabulary here."""
+"""Pure math on batched arrays: sigma points, square-root factors, resampling, SE(2),
+NaN-safe numerics. No SLAM vocabulary here."""
 
-from jaxslam.core import resampling, se2, sigma, sqrt
+from jaxslam.core import numerics, resampling, se2, sigma, sqrt
+from jaxslam.core.numerics import safe_atan2, safe_divide, safe_norm, safe_sqrt
 from jaxslam.core.resampling import (
     effective_sample_size,
     get_resampler,
+    log_likelihood_increment,
     multinomial,
     normalize_log_weights,
     residual,
@@ -23,8 +25,9 @@ from jaxslam.core.sqrt import (
 )
 
 __all__ = [
-    "resampling", "se2", "sigma", "sqrt",
-    "effective_sample_size", "get_resampler", "multinomial", "normalize_log_weights",
+    "numerics", "resampling", "se2", "sigma", "sqrt",
+    "safe_atan2", "safe_divide", "safe_norm", "safe_sqrt",
+    "effective_sample_size", "get_resampler", "log_likelihood_increment", "multinomial", "normalize_log_weights",
     "residual", "selective_resample", "stratified", "systematic",
     "UTParams", "UTResult", "sigma_points", "unscented_transform", "ut_moments", "ut_weights",
     "chol_update", "chol_update_checked", "chol_update_many", "chol_update_many_checked",

@@ -27,24 +27,30 @@ import jax.numpy as jnp
 from jax import Array
 from jax.scipy.special import logsumexp
 
+from jaxslam.core.numerics import normalize_log_weights
+
 Resampler = Callable[[Array, Array], Array]
-
-
-def normalize_log_weights(log_weights: Array) -> Array:
-    """Log-weights that sum to one in linear space (uniform if all underflow or NaN)."""
-    clean = jnp.where(jnp.isnan(log_weights), -jnp.inf, log_weights)
-    total = logsumexp(clean)
-    degenerate = ~jnp.isfinite(total)
-    n = log_weights.shape[-1]
-    uniform = jnp.full_like(clean, -jnp.log(jnp.asarray(n, clean.dtype)))
-    safe_total = jnp.where(degenerate, 0.0, total)
-    return jnp.where(degenerate, uniform, clean - safe_total)
 
 
 def effective_sample_size(log_weights: Array) -> Array:
     """``1 / sum(w_i^2)`` of the normalised weights, computed in log space."""
     normalized = normalize_log_weights(log_weights)
     return jnp.exp(-logsumexp(2.0 * normalized))
+
+
+def log_likelihood_increment(log_weights: Array, log_weight_increments: Array) -> Array:
+    r"""The filter's estimate of the step's log-likelihood,
+
+    .. math:: \log \hat p(z_t \mid z_{1:t-1}) = \log \sum_m \bar w^{[m]}_{t-1}\, g^{[m]}_t,
+
+    from the log-weights before the step (normalised here: :math:`\bar w`) and each
+    particle's log weight increment :math:`\log g^{[m]}_t`. Summed over the steps it is
+    :math:`\log \hat Z`, the particle estimate of the log marginal likelihood. NaN
+    increments count as ``-inf``; if every increment is ``-inf`` the result is
+    ``-inf``, never NaN.
+    """
+    clean = jnp.where(jnp.isnan(log_weight_increments), -jnp.inf, log_weight_increments)
+    return logsumexp(normalize_log_weights(log_weights) + clean)
 
 
 def _cdf(log_weights: Array) -> Array:

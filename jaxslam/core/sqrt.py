@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from jaxslam.core.numerics import safe_divide
 from jaxslam.core.sigma import _default_mean, _default_residual
 
 
@@ -60,10 +61,9 @@ def _chol_update_one(chol: Array, vec: Array, sign: Array) -> tuple[Array, Array
         floor = tiny * jnp.maximum(lkk * lkk, tiny)
         ok = ok & (r2 > floor)
         r = jnp.sqrt(jnp.maximum(r2, floor))
-        # double-where: a zero pivot gets a safe divisor before the branch is chosen
-        safe_lkk = jnp.where(lkk == 0, 1.0, lkk).astype(dtype)
-        c = jnp.where(lkk == 0, 1.0, r / safe_lkk)
-        s = jnp.where(lkk == 0, 0.0, xk / safe_lkk)
+        # a zero pivot: the rotation is the identity (c = 1, s = 0), with finite gradients
+        c = safe_divide(r, lkk, 1.0)
+        s = safe_divide(xk, lkk, 0.0)
         below = rows > k
         col = chol[:, k]
         new_col = jnp.where(below, (col + sign * s * vec) / c, col)

@@ -81,7 +81,6 @@ __all__ = [
     "detect_no_return",
     "guess_angular_resolution",
     "load_carmen",
-    "load_dataset_log",
     "select_keyframes",
 ]
 
@@ -401,32 +400,3 @@ def load_carmen(
             value.setflags(write=False)
     return log
 
-def load_dataset_log(name: os.PathLike | str, **options: Any) -> CarmenLog:
-    """Load a registered CARMEN log by name, or any CARMEN log by path.
-
-    Names are those of :mod:`jaxslam.datasets.registry` with a CARMEN loader:
-    ``intel``, ``fr079``, ``mit-csail``, ``fr-clinic``, ``mit-killian`` (raw logs in
-    ``carmen_raw/``), ``<place>-corrected`` (GMapping-corrected logs in
-    ``carmen_gmapping_corrected/``, with ``laser_offset`` zero because their poses are
-    laser poses), and ``mrpt-sena``, ``mrpt-localization-demo``, ``mrpt-ual``; each
-    entry's ``options`` are its reading defaults.
-
-    Args:
-        name: a name above, or a path to a log file.
-        **options: keyword arguments for :func:`load_carmen`; they override the
-            per-log defaults.
-    """
-    from jaxslam.datasets.registry import DATASETS, lookup
-
-    key = str(name)
-    try:
-        info = lookup(key)
-    except KeyError:
-        info = None
-    if info is not None and info.loader == "carmen":
-        return info.load(**options)
-    path = Path(name)
-    if path.is_file():
-        return load_carmen(path, **options)
-    known = ", ".join(sorted(n for n, i in DATASETS.items() if i.loader == "carmen"))
-    raise FileNotFoundError(f"{key!r} is neither a known CARMEN log ({known}) nor a file")

@@ -46,6 +46,7 @@ import dataclasses
 import numpy as np
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, wrap_angle
+from jaxslam.datasets.relations import Relations
 
 DRIFT_RADIUS = 0.3
 """Metres of drift-process "distance" per radian turned in place (``w`` above)."""
@@ -168,8 +169,6 @@ def reference_relations(
     Returns:
         ``(Relations, kinds (R,) str)``; the relations are ordered local first.
     """
-    from jaxslam.metrics.relations import Relations
-
     stamps = np.asarray(stamps, dtype=np.float64)
     poses = np.asarray(poses, dtype=np.float64)
     s = poses.shape[0]

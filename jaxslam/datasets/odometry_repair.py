@@ -42,8 +42,7 @@ stretches, four scans (0.84 s) each, during turns: the pose stands still, then j
 processes keyframes only sees the right motion over the keyframe interval. One that
 follows every scan (:mod:`jaxslam.grid.tracking`) matches the scans of the stretch,
 so it already turns with the robot there, and then adds the catch-up on top: 40-50
-deg beyond the matcher's reach, and the map of every seed broke at these places
-(session 71). A ROS bag does not have this problem: the reader interpolates the
+deg beyond the matcher's reach, and the map breaks at these places. A ROS bag does not have this problem: the reader interpolates the
 odometry at each scan's stamp (:mod:`jaxslam.datasets.rosbag`).
 
 For a stretch of scans :math:`i .. j-1` whose pose equals :math:`o_{i-1}` exactly,

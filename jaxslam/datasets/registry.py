@@ -19,13 +19,14 @@ no files. :data:`ALGORITHMS` maps each algorithm name to the kind of data it run
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from jaxslam.datasets.carmen import DEFAULT_FLASER_MAX_RANGE
+from jaxslam.datasets.carmen import DEFAULT_FLASER_MAX_RANGE, CarmenLog, load_carmen
 from jaxslam.datasets.paths import DatasetNotFoundError, candidate_roots, find
 
 ALGORITHMS: dict[str, str] = {
@@ -233,6 +234,35 @@ def for_file(path: Path | str) -> DatasetInfo | None:
         if info.loader == "carmen" and Path(*info.files[0]).name == name:
             return info
     return None
+
+
+def load_dataset_log(name: os.PathLike | str, **options: Any) -> CarmenLog:
+    """Load a registered CARMEN log by name, or any CARMEN log by path.
+
+    Names are those of :mod:`jaxslam.datasets.registry` with a CARMEN loader:
+    ``intel``, ``fr079``, ``mit-csail``, ``fr-clinic``, ``mit-killian`` (raw logs in
+    ``carmen_raw/``), ``<place>-corrected`` (GMapping-corrected logs in
+    ``carmen_gmapping_corrected/``, with ``laser_offset`` zero because their poses are
+    laser poses), and ``mrpt-sena``, ``mrpt-localization-demo``, ``mrpt-ual``; each
+    entry's ``options`` are its reading defaults.
+
+    Args:
+        name: a name above, or a path to a log file.
+        **options: keyword arguments for :func:`load_carmen`; they override the
+            per-log defaults.
+    """
+    key = str(name)
+    try:
+        info = lookup(key)
+    except KeyError:
+        info = None
+    if info is not None and info.loader == "carmen":
+        return info.load(**options)
+    path = Path(name)
+    if path.is_file():
+        return load_carmen(path, **options)
+    known = ", ".join(sorted(n for n, i in DATASETS.items() if i.loader == "carmen"))
+    raise FileNotFoundError(f"{key!r} is neither a known CARMEN log ({known}) nor a file")
 
 
 def describe() -> list[dict]:

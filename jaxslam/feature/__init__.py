@@ -13,12 +13,14 @@ association.
 * :mod:`~jaxslam.feature.ensemble`: ``run_landmark_ensemble``, one run per seed in one program.
 """
 
+from jaxslam.feature.ensemble import run_landmark_ensemble
+from jaxslam.feature.experiment import LandmarkSlamResult, run_landmark_slam
 from jaxslam.feature.filter import Info, Observation, State, init, run, step
 from jaxslam.feature.landmarks import LandmarkTable
 from jaxslam.feature.params import Config, Params
 from jaxslam.feature.proposals import Proposal, erb_proposal, rb_proposal
 
 __all__ = [
-    "Config", "Info", "LandmarkTable", "Observation", "Params", "Proposal", "State",
-    "erb_proposal", "init", "rb_proposal", "run", "step",
+    "Config", "Info", "LandmarkSlamResult", "LandmarkTable", "Observation", "Params", "Proposal", "State",
+    "erb_proposal", "init", "rb_proposal", "run", "run_landmark_ensemble", "run_landmark_slam", "step",
 ]

@@ -72,7 +72,12 @@ import jax.numpy as jnp
 from jax import Array
 from jax.scipy.special import logsumexp
 
-from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
+from jaxslam.core.resampling import (
+    effective_sample_size,
+    log_likelihood_increment,
+    normalize_log_weights,
+    selective_resample,
+)
 from jaxslam.core.se2 import pose_residual, wrap_angle
 from jaxslam.runtime.driver import best_particle, scan_runner
 from jaxslam.feature.landmarks import LandmarkTable, empty_table
@@ -130,6 +135,7 @@ class Info(NamedTuple):
     num_landmarks_min: Array  # int32 fewest landmarks over the particles
     num_landmarks_max: Array  # int32 most landmarks over the particles
     association_disagreement: Array  # int32 real observations whose decision (match/new/ignore) differs between particles
+    log_likelihood_increment: Array  # log sum_m w_m g_m (eq. 11 increments, weights before the step); 0 if no particle was updated
 
 
 def cast_params(params: Params, dtype) -> Params:
@@ -206,6 +212,7 @@ def _finish(
     config: Config,
     invalid: tuple[Array, Array],
     observation_mask: Array,
+    increment: Array,
 ) -> tuple[State, Info]:
     dtype = state.poses.dtype
     log_w = normalize_log_weights(state.log_weights)
@@ -262,6 +269,7 @@ def _finish(
         num_ancestors=jnp.sum(jnp.zeros(config.num_particles, jnp.int32).at[ancestors].set(1)),
         num_landmarks_min=jnp.min(state.landmarks.count),
         num_landmarks_max=jnp.max(state.landmarks.count),
+        log_likelihood_increment=increment,
         **extra,
     )
     return new_state, info
@@ -359,10 +367,12 @@ def step(
             any_finite, state.cumulative_log_likelihood + out.log_weight_increment, state.cumulative_log_likelihood
         )
         updated = State(out.pose, out.pose_sqrt, log_weights, cumulative, out.landmarks)
-        return _finish(k_resample, updated, out, params, config, invalid, observation.mask)
+        increment = jnp.where(any_finite, log_likelihood_increment(state.log_weights, out.log_weight_increment), 0.0)
+        return _finish(k_resample, updated, out, params, config, invalid, observation.mask, increment)
 
     def idle_step(state):
-        return _finish(k_resample, state, None, params, config, invalid, observation.mask)
+        zero = jnp.zeros((), state.log_weights.dtype)
+        return _finish(k_resample, state, None, params, config, invalid, observation.mask, zero)
 
     if not config.skip_stationary:
         return active_step(state)

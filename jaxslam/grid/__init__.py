@@ -35,8 +35,23 @@ from jaxslam.grid.types import (
 from jaxslam.grid.export import save_map
 from jaxslam.grid.map import GridSpec
 
+# The whole-run entry points read logs (jaxslam.datasets): loaded on first use, so that
+# importing a kernel module does not import the loaders.
+_ENTRY_POINTS = {"GridSlamResult": "jaxslam.grid.experiment", "make_config": "jaxslam.grid.experiment",
+                 "run_grid_slam": "jaxslam.grid.experiment"}
+
+
+def __getattr__(name: str):
+    if name in _ENTRY_POINTS:
+        from importlib import import_module
+
+        return getattr(import_module(_ENTRY_POINTS[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
     "GridSlamConfig",
+    "GridSlamResult",
     "GridSlamInfo",
     "GridSlamParams",
     "GridSlamState",
@@ -53,8 +68,10 @@ __all__ = [
     "export",
     "gmapping",
     "init",
+    "make_config",
     "map",
     "matching",
+    "run_grid_slam",
     "save_map",
     "score",
     "srupf",

@@ -54,202 +54,73 @@ doors, repeated every few metres), not drift. The tracking then keeps of the
 closure's position correction only the part the scan constrains, as for any match
 (:func:`jaxslam.grid.tracking.constrained_pose`).
 
-Measured (``srupf-gm``, 30 particles, relations error mean per seed, m; the
-robustness section of ``docs/results.md``, "Loop-closure search", has every log and the commands). MIT
-Killian, seeds 0-9:
+Why a jump bound and confirmation: a single scan's wide match finds aliases (a
+corridor's doors, repeated every few metres, or a stretch along a corridor's axis), and
+without the bound a run that took one went on jumping at the same place, metres every
+few dozen scans. A false closure that passes every test at the candidate still shows
+itself afterwards, which the watch below uses. Three tests at the candidate did not
+separate false closures from right ones on MIT Killian (right and wrong judged by the
+benchmark's relations), so they are off or absent: the conflict test
+(``closure_conflict``, default 0), a margin over the best candidate at least 1 m away,
+and the share of beams in known free space at the candidate. A refused right closure
+leaves the drift in place until the next chance, which may be far.
 
-==========================================  ==============================================
-search off (the default)                    1.50 / 1.01 / 1.11 / 0.87 / 1.01 / 1.98 / 0.98 /
-                                            0.93 / 1.38 / 1.35 (mean 1.21, worst 1.98)
-search on (this rule)                       0.29 / 0.19 / 0.13 / 0.16 / 0.10 / 0.14 / 5.39 /
-                                            1.90 / 0.10 / 0.85 (mean 0.92, median 0.175, worst 5.39)
-same program, no jump bound (seeds 0-4)     0.20 / 0.19 / 1.44 / 0.16 / 0.10
-first rule (one scan, no bound; seeds 0-4)  0.59 / 1.57 / 0.15 / 0.14 / 1.62 and, in another
-                                            program, 0.14 / 0.31 / 1.52 / 1.02 / 1.39
-==========================================  ==============================================
-
-(GMapping C++ with its defaults, suite v4, seeds 0-4: 1.51 / 5.12 / 5.07 / 1.33 /
-0.25.) Seven of ten Killian seeds end at 0.10-0.29 m. Seeds 7 and 9 take a false
-closure that no test here refuses, at places that fail in most programs: near scan
-11365 (a jump of 3-4 m and 12-14 deg) and near scan 16350 (3-5 m along a corridor,
-where the relations put the pose before the jump 12-15 m and 5-17 deg off: the right
-pose lies beyond the search's 4 m, and it finds an alias); seed 6 was 7 m off
-already at its first closure (scan 6433). Without the jump bound
-the runs that went wrong near scan 16350 went on jumping there, 3-5 m every 40
-scans, four or five times in a row, and ended 25-30 m off (seed 2 above: 1.44 m
-without the bound, 0.13 m with it); the bound also refused a right closure 3 scans
-after a small one (seed 0, 0.20 -> 0.29 m).
-Confirmation ended the false closures on perturbed Orebro and Acapulco (none taken,
-against 2-8 m errors with the first rule). On Intel one seed in five still takes
-false closures of 1.2-3.2 m (seed 1, 0.52 m against 0.045 m without). So the search
-stayed off by default then. Three other tests meant to refuse false closures did not
-separate them from right ones (Killian, right and wrong judged by the relations): the
-conflict test (``closure_conflict``, default 0: off; at 0.15 it blocked right closures
-as well, Killian 0.59 / 1.57 / 0.17 / 1.89 / 1.45 m); a margin over the best
-candidate at least 1 m away (1/1.19 to 1/3.97 of the winner at right closures, 1/1.16
-to 1/1.97 at wrong ones); and the same share of beams in known free space measured at
-the candidate, on every scan it wins (session 40, not kept). After a closure that
-share, read from the next three scans' matches in the closure's frame
-(``benchmarks/closure_diagnostics.py`` over the ten Killian runs above), exceeds 0.15
-after 6 of 11 wrong closures but also after 3 of 25 right ones, and refusing such
-candidates gave 0.33 / 0.41 / 0.45 / 1.16 / 0.10 / 1.62 / 5.77 / 1.90 / 0.10 / 0.13 m
-(mean 1.20, median 0.43, worst 5.77): worse in six seeds, the same to the last digit in
-three (seed 7's false closure still passed), better in one. A refused right closure
-leaves the drift in place until the next chance, which may be far. Left to try:
-closures taken by only some particles, whose weights decide over the scans that
-follow (the tracking is one match for the whole set today), and a search whose reach
-grows with the distance since the last closure instead of a fixed one (Killian's
-right closures already jumped up to 4.8 m with a reach of 4 m; see "Reach" below for
-the wider fixed reach taken since).
-
-Watch and undo (session 41; ``closure_undo``, 1: off). Averaged over the 5 m of
-odometry after a closure instead of three scans, the share of beams ending in known
-free space separates the two kinds far better (session 39's ten Killian runs: over
-0.11 after 9 of 11 wrong closures and 1 of 25 right ones, which followed a wrong one
-150 scans before and so met its writes). A test at the candidate cannot use it: the
-scans that show the alias come after the jump. So a closure taken is watched
-(``closure_watch`` m) and undone where that mean exceeds ``closure_undo``; the undo
-takes back the correction the tracking applied (the closure's, less what
+**Watch and undo** (``closure_undo``; 1: off). Averaged over ``closure_watch`` m of
+odometry after a closure, the share of beams ending in known free space separates
+false closures from right ones far better than any test at the candidate: the scans
+that show an alias come after the jump. So a closure taken is watched and undone where
+that mean exceeds ``closure_undo`` (0.11: lower thresholds undo right closures along
+long corridors, whose kept closures watch at up to about 0.11); the undo takes back the
+correction the tracking applied (the closure's, less what
 :func:`jaxslam.grid.tracking.constrained_pose` dropped), whatever the match at the
 undone pose scores, and refuses the same candidate afterwards. The map keeps what the
-scans in between wrote. Measured (``docs/results.md``, loop-closure section, has every log):
-Killian seeds 0-9 0.26 / 1.47 / 1.04 / 0.15 / 0.86 / 0.14 / 1.55 / 0.70 / 0.10 / 0.69 m
-(mean 0.70, median 0.69, worst 1.55, against 0.92 / 0.175 / 5.39 without the undo);
-Intel's seed 1 0.044 m against 0.524 m. (The perturbed campus, 0.296 m with the undo
-against 1.57 m with the search off, gets 0.251 m in the same program without the undo:
-that gain is the search's.) It costs Killian's median: right closures undone
-(one that corrected a wrong one 150 scans before met its writes) or not taken later.
-Killian seeds 10-19 in one program with and without the undo (a traced parameter):
-mean 0.78 / median 0.81 / worst 1.62 m against 0.83 / 0.97 / 1.94 m.
-So the undo is the search's default. A threshold of 0.08 (session 43, one program):
-Killian seeds 0-9 mean 0.48 against 0.69 m (right closures kept there watch at up to
-0.074, wrong ones at 0.084-0.101), but the infinite corridor's kept closures watch at
-up to 0.108 and undoing them took it from 0.54 / 1.27 to 0.89 / 2.31 m (mean / worst
-seed); 0.11 stays.
+scans in between wrote. The search, with its watch and undo, is SRUPF-GM's default
+(:func:`jaxslam.grid.experiment.make_config`); the GMapping-style filter, a baseline
+for GMapping, which has no such search, keeps it off.
 
-The search on by default (session 42): SRUPF-GM's default
-(:func:`jaxslam.grid.experiment.make_config`; the GMapping-style filter, a baseline for
-GMapping, which has no such search, keeps it off). The runs that had kept it off were
-read again against their reference poses. Perturbed Seattle's seed 0 (0.148 against
-0.029 m) and Belgioioso's relations of 1.35 and 1.87 m are right closures at the end
-of the log, each correcting a drift of about 1 m gathered before it (Belgioioso high,
-seed 1: the path from scan 11 to scan 393 is 1.23 m off the reference, to scan 394,
-after the closure, 0.04 m); the relations from the drifted scans carry the error.
-Intel-high's seeds 0 and 1 are false closures (3.5-3.8 m at scan 825, into ground the
-map barely knows, undone 8 scans later): relations of 4 m, mean errors 0.066 and 0.064
-m against GMapping C++'s 0.069 and 0.062 m. On the raw MIT CSAIL log (no relations)
-the search closes the building's loops that the tracking alone leaves open (the
-session 42 section of ``docs/results.md`` has the maps and every log).
-
-A fast undo (``closure_undo_fast``, 1: off, the default) undoes a closure before the
+**Fast undo** (``closure_undo_fast``; 1: off, the default) undoes a closure before the
 watch ends, once the watched share averages over it on at least two scans and
-:data:`FAST_SHARE` of the watch. At 0.4 against 1, in one program: Intel-high's false
-closures are undone after 2-3 scans (seeds 0 / 1: 0.055 / 0.109 m against 0.066 /
-0.064 m; seed 1 takes another one later), Killian seeds 0-9 end the same in eight
-seeds and slightly better in two, the infinite corridor the same, the campus worse
-(mean 0.615 against 0.460 m in the same program, session 43; seed 3 1.132 against
-0.363 m). So it stays off.
+:data:`FAST_SHARE` of the watch. It undoes false closures a few scans sooner but also
+right ones in sparse scenes, so it is an option.
 
-The path reported takes an undone closure back (session 43;
-:func:`jaxslam.grid.undone_closures.take_back`): the scans between the closure and its
+**The path reported** takes an undone closure back
+(:func:`jaxslam.grid.undone_closures.take_back`): the scans between the closure and its
 undo were tracked in the closure's frame, which the filter has since rejected, so their
 poses are reported in the frame it kept, :math:`A^{-1} \oplus x_s` (as the path of a
-lineage is reported after the resamplings that chose it). The filter itself is unchanged
-(the same program gives the same runs to the last digit); ``Info.track_undo`` records
-what each undo took back. Intel-high seeds 0 / 1: 0.047 / 0.049 m against 0.066 / 0.064
-m as tracked (the relations of 4 m across the false closure at scan 825 fall to 0.5 /
-1.2 m: the scans in between were matched against the wrong place); Killian seeds 0-9 and
-the infinite corridor gain 0.00-0.01 m in the seeds with an undo.
+lineage is reported after the resamplings that chose it). The filter itself is
+unchanged; ``Info.track_undo`` records what each undo took back.
 
-No closure inside a watch (session 49; ``closure_nest``, 0: the default). Before, a
-closure taken while another was watched restarted the watch, so the first was never
-judged: after a false closure the tracking's matches score low, the search starts
-again, and whatever it takes next ends the first one's watch. The search now waits
-until the watch has ended (kept or undone); ``closure_nest`` 1 restores the old rule.
-Measured in one program (a traced parameter, ``srupf-gm``, 30 particles, pinned), raw
-Intel seeds 0-19: a closure was taken inside a watch in two seeds of twenty. Seed 2: a
-false closure at scan 13293 (4.3 m and -21 deg after 535 m without one; half the beams
-end in known free space after it) was followed inside its watch by another at 13357,
-undone at 13445, which left the path in the first one's frame (largest relation 4.25
-m). Held back, the search lets the watch undo the first at 13382, and a right closure
-follows at 13388 (largest relation 1.02 m, mean 0.0325 -> 0.0277 m). Seed 3: a false
-closure at 13370 had been corrected inside its watch by a right one at 13439 (undone
-by its own watch at 13526, and taken again at 13545); held back, the first is undone
-at 13458, the next closure (13479) is false and still watched when the log ends
-(largest relation 2.08 -> 2.15 m, relations over 0.5 m 7 -> 25, mean 0.034 -> 0.044
-m). The other eighteen Intel seeds, perturbed Intel-high 0-4, MIT Killian 1-4, the
-perturbed campus (first 800 keyframes) 0-4, the infinite corridor, Seattle, FHW and
-Belgioioso (high) 0-2 and raw FR079 0-4 ran the same to the last digit both ways: no
-closure was taken inside a watch there. Kept for the rule, and for the largest error: over the twenty Intel seeds the
-largest relation is 2.15 m against 4.25 m, the worst seed's mean 0.047 m both ways.
+**No closure inside a watch** (``closure_nest``; 0: the default). After a false closure
+the tracking's matches score low and the search starts again; a closure taken inside
+the watch would restart it, and the first one would never be judged. So the search
+waits until the watch has ended (kept or undone); ``closure_nest`` 1 lets it nest.
 
-The end of the run (session 50; :func:`jaxslam.grid.undone_closures.judge_at_end`,
-``closure_undo_end``). A log can end inside a watch: Intel seed 3 above ends 152 scans
-after its false closure at 13479, whose watched scans averaged 0.35 of their beams in
-known free space. The path reported judges such a closure on the scans it had, with a
-bar of 0.2 instead of 0.11, because fewer scans are averaged (the rates in
-:func:`jaxslam.grid.undone_closures.judge_at_end`). That run: mean 0.0438 -> 0.0364 m,
-relations over 0.5 m 25 -> 19 (the scans after the closure 1.4-2.0 m -> 0.5-0.6 m off);
-in another program's draw of Intel seed 4, 0.245 -> 0.218 m (largest relation 7.13 ->
-3.83 m). In the 40 other raw Intel and Killian runs of that session no closure was open
-at the end. The filter is unchanged (raw Intel seeds 0-11 and Killian 1-2 ran to the
-last digit as in session 49); only the reported path and keyframe poses move.
+**The end of the run** (:func:`jaxslam.grid.undone_closures.judge_at_end`,
+``closure_undo_end``). A log can end inside a watch; the path reported judges such a
+closure on the scans it had, with a higher bar (0.2) because fewer scans are averaged.
+Only the reported path and keyframe poses move; the filter is unchanged.
 
-Reach (session 44): ``closure_radius`` 6 m instead of 4 m, a program change measured
-against the runs of session 43 (``srupf-gm``, 30 particles, relations error per seed,
-m). MIT Killian seeds 0-9: 0.19 / 0.31 / 1.08 / 0.14 / 0.14 / 0.27 / 0.19 / 0.18 /
-0.10 / 0.10 (mean 0.27, median 0.18, worst 1.08) against 0.26 / 1.46 / 1.03 / 0.15 /
-0.86 / 0.14 / 1.54 / 0.70 / 0.10 / 0.69 (mean 0.69, median 0.69, worst 1.54). The
-seeds that had gone wrong near scan 16350 had missed the closure near scan 15770
-(where the others jumped 2.2-4.2 m): their drift there lay beyond 4 m. (These runs
-are pinned to one core, so XLA compiles for one thread; on two threads, as ``jaxslam
-run`` compiles them, another draw, Killian seeds 0-4 gave a mean of 0.61 against 1.00
-and a worst seed of 1.03 against 1.62.) The
-perturbed infinite corridor: mean 0.43 against 0.54, worst seed 1.33 against 1.27
-(more closures along its axis, and more of them undone); the perturbed campus 0.45
-against 0.46 (worst 0.79 both: seed 0 takes no closure either way); perturbed
-Intel, Seattle, CSAIL, FHW and Belgioioso the same to the last digit in 24 of 25
-runs (Intel-high seed 3 0.049 against 0.048); raw Intel seeds 5-9 and FR079 seeds
-5-9 the same to the last digit (no closure taken). The candidates grow as
-:math:`R^2` (63,000 against 29,000 a searched scan), on the scans under the trigger
-only: Killian's filter loop took 8-25 % longer on a noisy machine, Intel's about the
-same. A reach of 8 m gave Killian a mean of 0.41 and a worst seed of 1.64 m: five
-false closures of 8-9.5 m, two of them not undone; the wider the window, the more
-aliases it holds.
+**Reach.** ``closure_radius`` is 6 m: the drift met at a loop's return on MIT Killian
+reaches 4-6 m, and a search that cannot reach the right pose finds an alias instead;
+at 8 m the window holds more aliases than right closures gain. The candidates grow as
+:math:`R^2` (63,000 at 6 m against 29,000 at 4 m), on the scans under the trigger only.
 
-Reach that grows with the distance since the last closure (session 45): where
+**Reach that grows with the distance since the last closure.** Where
 ``closure_reach_rate`` :math:`\gamma` times the odometry distance :math:`d` since the
 last closure exceeds ``R``, a second coarse stage (``config.closure_radius_far``,
 10 m) scores the candidates of the near search's square and those within
 :math:`\min(\gamma d, R_{far})` of :math:`x_0` (a disc: the drift it bounds has no
 preferred axis); both stages feed one refinement (:func:`coarse_candidates`,
-:func:`closure_phases`). :math:`\gamma` = 0.02 m per m bounds the drift met at Killian's
-closure near scan 15770 after some 480 m without one: 1.0-7.5 m over session 44's
-ten one-thread seeds (the median error of the relations into it, before the jump); the
-seeds with more than 6 m there had missed it. Below :math:`R / \gamma` = 300 m the far
-stage never runs, and a run whose searches all start within 300 m of the last closure
-is the same to the last digit with and without it. Measured in one program (the rate
-is a parameter, so both arms run the same compiled code; ``docs/results.md``'s suite v5.3 has
-every log and seed), rate 0 against 0.02, relations error mean / worst seed: Killian
-seeds 0-9, one thread, 0.65 / 1.61 against 0.50 / 1.08 m (five seeds better, one worse,
-four the same); seeds 0-4 on two threads (as ``jaxslam run`` compiles it) 0.37 / 1.08
-against 0.19 / 0.31 m; the perturbed infinite corridor 0.53 / 1.07 against 0.48 / 1.16
-m. The perturbed campus's seed 3 gets worse, 0.36 against 1.66 m: it takes a right
-closure of 8.0 m, but the map keeps the copy of the place its scans wrote while the
-pose drifted, 8.8 m away, and the tracking later slides onto that copy along a
-straight stretch (a closure moves the pose, not the map already written; the larger
-the jump, the larger the copy). Perturbed Intel, CSAIL, FHW, Seattle and Belgioioso
-and raw Intel and FR079 were the same to the last digit in both arms (measured in a
-first version, which refined in each stage; the two versions agree to the last digit
-on 34 of the 40 one-thread runs that both made, and their two-thread runs are another
-draw as a whole). (Between programs that round differently a Killian seed is
-another run: the same rule scores 0.27 m mean over the one-thread seeds in session
-44's program and 0.65 m in this one, so only arms of one program compare.) Cost: the
-far stage's window and candidates grow as :math:`R_{far}^2`, 2.8 times the near
-stage's, on the scans under the trigger past 300 m only: Killian's filter loop is the
-same within this machine's noise, and the shared refinement keeps the compilation as
-it was (Intel, cold cache: 12.5 s against 13.1 s before; the first version, with a
-refinement in each stage, took 18.4 s against 11.3 s).
+:func:`closure_phases`), so the program holds the refinement once. :math:`\gamma` = 0.02 m
+per m bounds the drift of the tracking over a long loop without a closure. Below
+:math:`R / \gamma` = 300 m the far stage never runs, and a run whose searches all start
+within 300 m of the last closure is the same to the last digit with and without it. A
+closure moves the pose, not the map already written: after a large right closure the
+map keeps the copy of the place that the drifted scans wrote, and the tracking can
+later slide onto it; the larger the jump, the larger the copy.
+
+``benchmarks/grid_robustness.py`` measures these rules over the robustness suite's logs
+and seeds.
 
 Cost: one window of :math:`(2(r + R)/\rho)^2` cells (``r`` =
 :data:`SEARCH_REACH`; beams beyond it take no part in the coarse stage), about
@@ -257,7 +128,7 @@ Cost: one window of :math:`(2(r + R)/\rho)^2` cells (``r`` =
 :math:`(2\Theta/\delta + 1)(2R/h + 1)^2` candidates of half the matched beams, scored as
 sums of shifted blocks of the coarse map (:func:`candidate_scores`): 1.3-2.3 ms for
 63,000 candidates on one core of the 2-core machine, where reading each candidate's
-end points one by one took 9-18 ms (session 72), for the scans under the trigger
+end points one by one took 9-18 ms, for the scans under the trigger
 only. Logs whose matches score low for long stretches trigger it on a large share of
 their scans: on fr-clinic (long-range scans, matches at 0.1-0.3 of the beams, no
 closure taken in the whole log) the filter loop took 160.6 s before and 90.1 s after
@@ -365,9 +236,8 @@ def candidate_scores(coarse: Array, corner: Array, cell: float, start: Array, lo
     ``1 / occ_saturation`` = 1/8) every partial sum is exact, so the order of the sum
     does not change a score; and an end point moved by whole cells lies where the
     gathers, which added the shift to it in floating point, found it, except within
-    rounding of a cell edge. Whole runs were the same bit for bit (session 72: 13 runs of
-    MIT Killian, Intel and the perturbed campus, infinite corridor and Belgioioso, with
-    2 to 9 closures each, and fr-clinic).
+    rounding of a cell edge, so whole runs are the same bit for bit as with the
+    gathers.
     """
     dtype = start.dtype
     n = coarse.shape[0]

@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.datasets.carmen import CarmenLog, load_dataset_log, select_keyframes
-from jaxslam.datasets.registry import algorithms
+from jaxslam.datasets.carmen import CarmenLog, select_keyframes
+from jaxslam.datasets.registry import algorithms, load_dataset_log
 from jaxslam.grid import gmapping, srupf
 from jaxslam.grid.driver import DEFAULT_CHUNK, recompilations, run_filter
 from jaxslam.grid.filter import best_particle
@@ -218,7 +218,7 @@ def closure_default(algorithm: str) -> bool:
 def coarse_default(algorithm: str) -> int:
     """The coarse-to-fine match's wide climbs by default (``config.coarse_iterations``,
     :func:`jaxslam.grid.filter.coarse_start`): 4 for SRUPF-GM, measured over the whole
-    robustness suite (``docs/results.md``, suites v5.19-v5.20); 0 for the other filters,
+    robustness suite (``benchmarks/grid_robustness.py``); 0 for the other filters,
     which it was not measured on."""
     return 4 if algorithm == "srupf-gm" else 0
 
@@ -228,7 +228,7 @@ def recover_default(algorithm: str) -> float:
     :mod:`jaxslam.grid.recovery`): :data:`~jaxslam.grid.recovery.RECOVER_RADIUS` for
     SRUPF-GM, with its wider proposals after refused matches
     (:func:`jaxslam.grid.types.refused_noise_default`), measured together over the
-    whole robustness suite (``docs/results.md``, suite v5.23); 0 (off) for the other
+    whole robustness suite (``benchmarks/grid_robustness.py``); 0 (off) for the other
     filters, which they were not measured on."""
     return RECOVER_RADIUS if algorithm == "srupf-gm" else 0.0
 
@@ -280,7 +280,7 @@ def run_grid_slam(
 
     Args:
         log_or_sim: a :class:`CarmenLog` (or :class:`SimulatedLog`), a dataset name
-            known to :func:`jaxslam.datasets.carmen.load_dataset_log`, or a path.
+            known to :func:`jaxslam.datasets.registry.load_dataset_log`, or a path.
         algorithm: ``"srupf-gm"`` (pose correction), ``"srupf-gm-npc"`` or
             ``"gmapping"``.
         particles: number of particles.
@@ -370,7 +370,7 @@ def run_grid_slam(
     unit = float(prm.log_odds_unit)
     params_record = {k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"}
     state, ys, cfg, stats = run_filter(
-        module.scan_step, seed_key(seed), prm, cfg, first, np.asarray(odom[0], real), controls,
+        module.step, seed_key(seed), prm, cfg, first, np.asarray(odom[0], real), controls,
         observations, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress,
         checkpoint=checkpoint, unit="scan",
     )

@@ -29,12 +29,17 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, selective_resample
+from jaxslam.core.resampling import (
+    effective_sample_size,
+    log_likelihood_increment,
+    normalize_log_weights,
+    selective_resample,
+)
 from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.closure import MEMORY
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.matching import Climb, EllipseBound, climbs_in_turn, get_matcher, gmapping_basis, hill_climb, search_bound
-from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn
+from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn, scan_log_likelihood
 from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
 from jaxslam.grid.update import update_paged
 
@@ -47,6 +52,23 @@ def scan_angles(observation: Scan, params: GridSlamParams) -> Array:
 def score_model(params: GridSlamParams) -> ScoreModel:
     """The traced score settings of ``params``."""
     return ScoreModel(params.occ_saturation, params.score_sigma, params.likelihood_floor)
+
+
+def scan_score_fn(read, local_points: Array, mask: Array, params: GridSlamParams, config: GridSlamConfig):
+    """The match score ``(M, 3) -> (M,)`` of poses against the map of ``read``
+    (:func:`jaxslam.grid.score.make_score_fn` with the params' score model and the
+    config's kernel): the sum of the beams' weighted evidence."""
+    return make_score_fn(read, local_points, mask, params.laser_offset, config.layout, score_model(params),
+                         config.score_kernel, config.free_check)
+
+
+def scan_likelihood(read, pose: Array, local_points: Array, mask: Array, params: GridSlamParams,
+                    config: GridSlamConfig) -> tuple[Array, Array]:
+    """``(log p(z | pose, map), score)`` of one pose
+    (:func:`jaxslam.grid.score.scan_log_likelihood` under the same model as
+    :func:`scan_score_fn`)."""
+    return scan_log_likelihood(read, pose, local_points, mask, params.laser_offset, config.layout,
+                               score_model(params), config.score_kernel, config.free_check)
 
 
 def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: GridSlamParams,
@@ -72,12 +94,9 @@ def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: Gr
     poses within ``coarse_radius`` standard deviations of the prediction) the wide
     climb skips every candidate outside it, as the matcher does. Unbounded, the wide
     climbs answer to no motion model and can hand the matcher a start it would never
-    have reached itself (perturbed CSAIL, seed 4: a turn of 0.51 rad, right in the
-    odometry, matched as 0.16 rad; bounded, the run scores as the others:
-    ``docs/results.md``, "Suite v5.21"). Measured over the
-    whole robustness suite; SRUPF-GM's default since
-    (:func:`jaxslam.grid.experiment.coarse_default`): ``docs/results.md``, "Suite
-    v5.19" and "Suite v5.20".
+    have reached itself (a turn of 0.51 rad that the odometry had right, matched as
+    0.16 rad). SRUPF-GM's default (:func:`jaxslam.grid.experiment.coarse_default`),
+    measured over the robustness suite (``benchmarks/grid_robustness.py``).
     """
     if not config.coarse_iterations:
         return pose
@@ -264,6 +283,7 @@ def finish_step(
     maps, dropped, status = integrate_scan(state.maps, map_poses + tie, observation, params, config)
     applied = status.code == 0
     ess = effective_sample_size(log_weights)
+    increment = log_likelihood_increment(state.log_weights, params.weight_gain * log_likelihoods)
     ancestors, resampled, new_log_weights = selective_resample(
         key, log_weights, params.resample_threshold, config.resampler
     )
@@ -303,6 +323,7 @@ def finish_step(
         track_closed=jnp.asarray(False),
         track_conflict=jnp.zeros((), log_weights.dtype),
         track_undo=jnp.zeros((4,), log_weights.dtype),
+        log_likelihood_increment=jnp.where(applied, increment, 0.0),
     )
     return new_state, info
 
@@ -330,6 +351,7 @@ def empty_info(state: GridSlamState, config: GridSlamConfig) -> GridSlamInfo:
         track_closed=jnp.asarray(False),
         track_conflict=zero,
         track_undo=jnp.zeros((4,), dtype),
+        log_likelihood_increment=zero,
     )
 
 
@@ -369,6 +391,8 @@ __all__ = [
     "particle_reader",
     "reset_status",
     "scan_angles",
+    "scan_likelihood",
+    "scan_score_fn",
     "score_model",
     "usable_range",
 ]

@@ -27,28 +27,11 @@ from jax import Array
 
 from jaxslam.runtime.driver import scan_runner
 from jaxslam.runtime.executables import module_function
-from jaxslam.grid.filter import (
-    coarse_to_fine,
-    finish_step,
-    guard,
-    init,
-    match_geometry,
-    particle_reader,
-    score_model,
-)
-from jaxslam.grid.types import (
-    GridSlamConfig,
-    GridSlamInfo,
-    GridSlamParams,
-    GridSlamState,
-    Odometry,
-    Scan,
-    as_odometry,
-    noise_scale_of,
-)
+from jaxslam.grid.filter import finish_step, guard, init, match_geometry, particle_reader, scan_likelihood, scan_score_fn
+from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Odometry, Scan
+from jaxslam.grid.types import as_odometry, noise_scale_of
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.score import make_score_fn, scan_log_likelihood
-from jaxslam.grid.tracking import constrained_pose, per_scan
+from jaxslam.grid.tracking import keyframe_match, per_scan
 from jaxslam.models.odometry import sample_gmapping
 
 
@@ -67,21 +50,10 @@ def correct_pose(
         ``(pose, score, log_likelihood)``; ``score`` is the mean occupancy over the
         matched beams (in ``[0, 1]``).
     """
-    model = score_model(params)
-    kernel = config.score_kernel
-    score_fn = make_score_fn(
-        read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
-    best, best_score = coarse_to_fine(read, local_points, mask, pose, pose_sqrt_cov, params, config, pose)
-    count = jnp.maximum(jnp.sum(mask), 1).astype(pose.dtype)
-    if config.constrain_matches:
-        best = constrained_pose(score_fn, best, pose, best_score, count, params)
-    log_lik_best, score_best = scan_log_likelihood(
-        read, best, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
-    log_lik_init, score_init = scan_log_likelihood(
-        read, pose, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
+    score_fn = scan_score_fn(read, local_points, mask, params, config)
+    best, _, count = keyframe_match(score_fn, read, local_points, mask, pose, pose, pose_sqrt_cov, params, config)
+    log_lik_best, score_best = scan_likelihood(read, best, local_points, mask, params, config)
+    log_lik_init, score_init = scan_likelihood(read, pose, local_points, mask, params, config)
     accept = score_best / count > params.min_score
     return (
         jnp.where(accept, best, pose),
@@ -142,11 +114,14 @@ def _step(
     )
 
 
-step = module_function(guard(_step), __name__, "step")
+# The filter's step, the one ``jaxslam run`` runs: every scan a step, tracked against
+# the best particle's map, with the keyframe update where the keyframe rule on the
+# tracked motion fires (jaxslam.grid.tracking.per_scan). ``keyframe_step`` is the
+# keyframe update alone, for keyframe inputs chosen on the host.
+keyframe_step = module_function(guard(_step), __name__, "keyframe_step")
+keyframe_run = scan_runner(keyframe_step)
+step = module_function(guard(per_scan(_step)), __name__, "step")
 run = scan_runner(step)
-# Every scan a step, keyframes decided on the tracked motion (jaxslam.grid.tracking).
-scan_step = module_function(guard(per_scan(_step)), __name__, "scan_step")
-scan_run = scan_runner(scan_step)
 
 
-__all__ = ["correct_pose", "init", "run", "scan_run", "scan_step", "step"]
+__all__ = ["correct_pose", "init", "keyframe_run", "keyframe_step", "run", "step"]

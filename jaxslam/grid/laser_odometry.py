@@ -27,7 +27,7 @@ poses; every pair is independent, so all pairs are matched at once in chunks
 as ``odom_poses`` (and the counts in ``stats``), for
 :func:`jaxslam.grid.experiment.run_grid_slam` or any other consumer of odometry.
 
-Status: a prototype, opt-in, not used by ``run_grid_slam`` (issue 10). Measured with
+Status: opt-in, not used by ``run_grid_slam``. Measured with
 ``benchmarks/grid_robustness.py`` (30 particles, seed 0, shared machine, one run
 each): against GMapping's corrected FR079 poses, the heading increments between
 consecutive scans err by 0.60 deg on average (wheels: 1.07 deg), but single false

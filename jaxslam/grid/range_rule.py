@@ -20,14 +20,13 @@ The rule, with :math:`f` the fraction of valid readings beyond ``NEAR_RANGE``:
 Why not 80 m everywhere: on MIT Killian (1.3 % far readings) 80 m made the worst of
 three seeds 7.60 m against 1.11 m, and far beams at a discount (``score_range`` 20 m,
 :func:`jaxslam.grid.filter.beam_weights`) still 3.63 m against 1.50 m of five seeds,
-with Intel's worst 0.074 m against 0.045 m and a loop about 1.15x slower (``docs/results.md``,
-"Far beams at a discount"). A log with few far readings gains nothing from them and
+with Intel's worst 0.074 m against 0.045 m and a loop about 1.15x slower. A log with few far readings gains nothing from them and
 loses to chance. Why no discount where the far field is used: on the perturbed
 campus, seeds 0-4 on the same code, all compiled pinned to one core, the discount
 scored 0.79 / 5.60 / 1.46 / 1.63 / 2.01 m and the full weight 0.79 / 0.29 / 6.16 /
 0.35 / 0.25 m: better on three seeds and in the mean, with one failing seed each
 (unpinned, the full weight gives 0.68 / 0.90 / 0.11 / 0.88 / 0.16 m: on this log the
-compiled program's rounding is a draw too; ``docs/results.md``, "Suite v4"). Why 10 %: the logs
+compiled program's rounding is a draw too). Why 10 %: the logs
 measured lie either at or below 4 % (indoor: Intel, FR079, Killian, CSAIL, Orebro, FHW, Infinite Corridor,
 Seattle, Belgioioso, Edmonton, Freiburg 101) or at or above 12 % (Acapulco, MRPT's
 Sena, the Freiburg clinic, MRPT's UAL, the campus); the threshold sits in the gap,

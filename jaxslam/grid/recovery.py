@@ -8,8 +8,7 @@ reach, the match scores like a scan that fits nowhere, it is refused, and the ju
 kept: the scan is written where it does not belong, and the next matches, against that
 map, are refused too. The perturbed Freiburg campus has twelve such jumps of 0.5-1.2 m
 sideways in its reference, which its own scans contradict
-(``benchmarks/scan_pair_agreement.py --steps-over 0.5``; ``docs/results.md``, suite
-v5.17); at the first, scan 238, the tracking's match scored 0.044 of the beams against
+(``benchmarks/scan_pair_agreement.py --steps-over 0.5``); at the first, scan 238, the tracking's match scored 0.044 of the beams against
 0.17-0.26 for its neighbours, and the next five were refused too.
 
 **Which increments are jumps.** A wheeled base (differential drive, Ackermann) cannot
@@ -47,7 +46,7 @@ slips, and runs the same to the last digit with and without it (raw Intel, seed 
 checked).
 
 Without the slip test (every refused match searched again), measured on this machine
-(``srupf-gm``, 30 particles, seeds 0-4, relations error mean per seed, m; suite v5.17):
+(``srupf-gm``, 30 particles, seeds 0-4, relations error mean per seed, m):
 the campus improved (0.302 / 0.394 / 0.232 / 1.444 / 0.107 against 0.789 / 0.280 / 0.512 /
 1.664 / 0.319) but the perturbed infinite corridor got worse (0.177 / 0.129 / 0.376 /
 1.131 / 0.140 against a mean of 0.181 and a worst seed of 0.295) and MIT Killian's seed 1
@@ -58,20 +57,19 @@ and is not the place. The slip test keeps the search to the scans whose odometry
 cannot be right. With the slip test alone (no share of the length), the perturbed
 Orebro got worse (0.200 / 0.075 / 0.136 / 0.095 / 0.074 against 0.138 / 0.075 / 0.137 /
 0.070 / 0.060), through searches at long real steps; with the share it runs as main.
-Over ten campus seeds it did not beat the default of then (docs/results.md, suite
-v5.17). Session 68 measured it again over today's coarse stage (suite v5.22): at scan
+Alone, over the coarse-to-fine match (:func:`jaxslam.grid.filter.coarse_start`): at scan
 238 every seed takes the scans' step (ten of ten short runs keep their heading within
 2 deg to scan 300, against four of ten without it), but the campus's later revisits,
 where every match scores 0.003-0.04 of the beams, still lose seeds (seed 5: 9.7 m, its
 heading turned 100 deg over scans 1706-1750 by the particles' climbs); elsewhere it
-changes two runs (Orebro seeds 1 and 9, 0.049 -> 0.072 and 0.064 -> 0.061 m). So it stayed an option.
-Session 69 measured it with proposals 2.5 times wider (``track_refused_noise_scale``
+changes two runs (Orebro seeds 1 and 9, 0.049 -> 0.072 and 0.064 -> 0.061 m).
+With proposals 2.5 times wider (``track_refused_noise_scale``
 0.5 against ``track_noise_scale`` 0.2) after refused matches
 (:func:`jaxslam.grid.tracking.keyframe_noise_scale`): the campus's seeds 0-9 all mapped
 (0.080-0.184 m, mean 0.117, against 0.998 and a worst seed of 2.639 m before, and
 GMapping C++'s 0.452 and 2.420 m; seeds 10-19 0.850 m mean, three of them 1.7-2.1 m),
-and together they are SRUPF-GM's default since
-(:func:`jaxslam.grid.experiment.recover_default`; ``docs/results.md``, suite v5.23).
+and together they are SRUPF-GM's default
+(:func:`jaxslam.grid.experiment.recover_default`; ``benchmarks/grid_robustness.py``).
 
 Unlike a loop closure it needs no confirmation and no high score (``closure_min_score``
 0.35, which the campus's right matches never reach): its reach is one increment's jump,

@@ -41,6 +41,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.core import se2
+from jaxslam.core.numerics import safe_divide
 from jaxslam.grid.map import CellReader
 
 
@@ -174,7 +175,8 @@ def free_points(local_points: Array, frame) -> Array:
     ``freeCellRatio``), in the laser frame."""
     dist = jnp.sqrt(jnp.sum(local_points * local_points, -1, keepdims=True))
     back = jnp.asarray(frame.resolution * 2**0.5, local_points.dtype)
-    scale = jnp.where(dist > back, 1.0 - back / jnp.where(dist > back, dist, 1.0), 0.0)
+    beyond = dist > back
+    scale = jnp.where(beyond, 1.0 - safe_divide(back, dist, defined=beyond), 0.0)
     return local_points * scale
 
 

@@ -67,33 +67,17 @@ import jax.numpy as jnp
 from jax import Array
 from jax.scipy.linalg import cho_solve
 
+from jaxslam.base import sample_pose
 from jaxslam.core import se2
 from jaxslam.core.sigma import UTParams
 from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
 from jaxslam.runtime.driver import scan_runner
 from jaxslam.runtime.executables import module_function
-from jaxslam.grid.filter import (
-    coarse_to_fine,
-    finish_step,
-    guard,
-    init,
-    match_geometry,
-    particle_reader,
-    score_model,
-)
-from jaxslam.grid.types import (
-    GridSlamConfig,
-    GridSlamInfo,
-    GridSlamParams,
-    GridSlamState,
-    Odometry,
-    Scan,
-    as_odometry,
-    noise_scale_of,
-)
+from jaxslam.grid.filter import finish_step, guard, init, match_geometry, particle_reader, scan_likelihood, scan_score_fn
+from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Odometry, Scan
+from jaxslam.grid.types import as_odometry, noise_scale_of
 from jaxslam.grid.map import CellReader
-from jaxslam.grid.score import make_score_fn, scan_log_likelihood
-from jaxslam.grid.tracking import constrained_pose, per_scan
+from jaxslam.grid.tracking import keyframe_match, per_scan
 from jaxslam.models.odometry import (
     Prediction,
     motion_noise_sqrt,
@@ -126,6 +110,12 @@ def sqrt_measurement_update(prediction: Prediction, nu: Array, match_noise_sqrt:
     columns = gain @ s_nu
     sqrt_cov, ok = chol_update_many_checked(prediction.sqrt_cov, columns.T, -1.0)  # (16)
     return MeasurementUpdate(nu, sqrt_cov, gain, s_nu, ok)
+
+
+def best_sigma_point(prediction: Prediction, score) -> Array:
+    """Eq. (10), the pose without a corrector: the propagated sigma point that
+    ``score`` (``(M, 3) -> (M,)``, larger is better) ranks first."""
+    return prediction.propagated[jnp.argmax(score(prediction.propagated))]
 
 
 def ut_params(params: GridSlamParams) -> UTParams:
@@ -170,39 +160,28 @@ def particle_update(
     """
     dtype = pose.dtype
     prediction = predict(pose, pose_sqrt_cov, control, params, noise_scale)
-    model = score_model(params)
-    kernel = config.score_kernel
-    score_fn = make_score_fn(
-        read, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
+    score_fn = scan_score_fn(read, local_points, mask, params, config)
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
     key_prior, key_post = jax.random.split(key)
     if config.sampling == "prior":
-        start = prediction.mean + prediction.sqrt_cov @ jax.random.normal(key_prior, (3,), dtype)
-        start = start.at[2].set(se2.wrap_angle(start[2]))
+        start = sample_pose(key_prior, prediction.mean, prediction.sqrt_cov)
     elif config.sampling == "posterior":
         start = prediction.mean
     else:
         raise ValueError(f"sampling must be 'prior' or 'posterior', got {config.sampling!r}")
     if config.correction == "pc":
-        best, best_score = coarse_to_fine(read, local_points, mask, start, prediction.sqrt_cov, params, config,
-                                          prediction.mean, prior_mean=prediction.mean)
-        if config.constrain_matches:
-            best = constrained_pose(score_fn, best, start, best_score, count, params)
+        best, best_score, _ = keyframe_match(score_fn, read, local_points, mask, start, prediction.mean,
+                                             prediction.sqrt_cov, params, config, prior_mean=prediction.mean)
         accept = best_score / count > params.min_score
         nu = jnp.where(accept, best, start)
     elif config.correction == "npc":
-        scores = score_fn(prediction.propagated)
-        nu = prediction.propagated[jnp.argmax(scores)]
+        nu = best_sigma_point(prediction, score_fn)
     else:
         raise ValueError(f"correction must be 'pc' or 'npc', got {config.correction!r}")
     update = sqrt_measurement_update(prediction, nu, jnp.diag(params.match_noise.astype(dtype)))
-    log_lik, score = scan_log_likelihood(
-        read, nu, local_points, mask, params.laser_offset, config.layout, model, kernel, config.free_check
-    )
+    log_lik, score = scan_likelihood(read, nu, local_points, mask, params, config)
     if config.sampling == "posterior":
-        next_pose = nu + update.sqrt_cov @ jax.random.normal(key_post, (3,), dtype)
-        next_pose = next_pose.at[2].set(se2.wrap_angle(next_pose[2]))
+        next_pose = sample_pose(key_post, nu, update.sqrt_cov)
     else:
         next_pose = nu
     return nu, next_pose, update.sqrt_cov, score / count, log_lik, update.pd_ok
@@ -248,11 +227,17 @@ def _step(
     )
 
 
-step = module_function(guard(_step), __name__, "step")
+# The filter's step, the one ``jaxslam run`` runs: every scan a step, tracked against
+# the best particle's map, with the keyframe update where the keyframe rule on the
+# tracked motion fires (jaxslam.grid.tracking.per_scan). ``keyframe_step`` is the
+# keyframe update alone, for keyframe inputs chosen on the host.
+keyframe_step = module_function(guard(_step), __name__, "keyframe_step")
+keyframe_run = scan_runner(keyframe_step)
+step = module_function(guard(per_scan(_step)), __name__, "step")
 run = scan_runner(step)
-# Every scan a step, keyframes decided on the tracked motion (jaxslam.grid.tracking).
-scan_step = module_function(guard(per_scan(_step)), __name__, "scan_step")
-scan_run = scan_runner(scan_step)
 
 
-__all__ = ["MeasurementUpdate", "init", "particle_update", "predict", "run", "sqrt_measurement_update", "step"]
+__all__ = [
+    "MeasurementUpdate", "best_sigma_point", "init", "keyframe_run", "keyframe_step", "particle_update", "predict", "run",
+    "sqrt_measurement_update", "step",
+]

@@ -6,7 +6,7 @@ taken apart. For each scan it
 1. takes the odometry pose at the scan's stamp (given, or interpolated from the
    odometry messages received so far; a scan waits until odometry newer than it
    has arrived, so none is dropped);
-2. runs one step of the filter module's per-scan step (``scan_step``, the batch
+2. runs one step of the filter module's per-scan step (``step``, the batch
    run's, :mod:`jaxslam.grid.tracking`): the scan is tracked against the best
    particle's map, and where the tracked motion reaches GMapping's linear, angular
    or temporal threshold the scan is a keyframe and the filter updates. The step is
@@ -288,7 +288,7 @@ class StreamingGridSlam:
         step = len(self._flags)
         key = self._step_keys(step)
         while True:
-            runner = step_runner(self.module.scan_step, self.config)
+            runner = step_runner(self.module.step, self.config)
             self.configs_used.add(self.config)
             # The runner donates its carry: keep what it returns.
             (self.state, self.params), ys = runner((self.state, self.params), key, control, scan)

@@ -83,7 +83,7 @@ bounded: a missed turn (FR079: 25 deg in 0.6 s) is the case tracking is for. Wit
 are GMapping's own (odometry) keyframes.
 
 Measured (30 particles, srupf-gm, whole logs, one seed per cell, relations error
-mean; a shared, loaded 2-core machine; see the note of issue 10):
+mean; a shared, loaded 2-core machine):
 
 =================================  ==========  ==========  ==========
 variant                            Intel s0    Intel s1    FR079 s0
@@ -112,7 +112,7 @@ the odometry model's motion noise (:func:`tracked_noise_scale`; at a metre per s
 GMapping's 0.2 rad/m heading noise scattered particles beyond their hill climbs, and
 a lost particle scores well against its own map), a match counts from any score
 (``min_score`` 0, GMapping's ``minimumScore``) and tracking trusts a match from 0.1
-(was 0.3). The five-seed table of every log is in ``docs/results.md`` (robustness suite).
+(rather than 0.3). ``benchmarks/grid_robustness.py`` runs every log over five seeds.
 After a refused match SRUPF-GM's proposals are wider, ``track_refused_noise_scale``
 (:func:`keyframe_noise_scale`).
 
@@ -134,7 +134,7 @@ from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.climbs import Phase, run_phases
 from jaxslam.grid.closure import closure_carry, closure_outcome, closure_phases, record_applied, refine_count
 from jaxslam.grid.undone_closures import take_back
-from jaxslam.grid.filter import empty_info, match_geometry, particle_reader, score_model
+from jaxslam.grid.filter import coarse_to_fine, empty_info, match_geometry, particle_reader, scan_score_fn, score_model
 from jaxslam.grid.recovery import recovery_carry, recovery_phases
 from jaxslam.grid.score import make_score_fn
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
@@ -156,10 +156,8 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
+    score_fn = scan_score_fn(read, local_points, mask, params, config)
     model = score_model(params)
-    score_fn = make_score_fn(
-        read, local_points, mask, params.laser_offset, config.layout, model, config.score_kernel, config.free_check,
-    )
 
     def score_at(poses, sigma):
         return make_score_fn(read, local_points, mask, params.laser_offset, config.layout,
@@ -240,6 +238,26 @@ def match_phases(guess: Array, retry: Array, turned_score: Array, config: GridSl
     return match(True) + match(False)
 
 
+def keyframe_match(score_fn, read, local_points: Array, mask: Array, start: Array, center: Array,
+                   sqrt_cov: Array, params: GridSlamParams, config: GridSlamConfig,
+                   prior_mean: Array | None = None) -> tuple[Array, Array, Array]:
+    """The keyframe corrector of both filters for one particle: the coarse stage
+    (within ``coarse_radius`` of ``center`` for a bounded matcher) and the config's
+    matcher from there (:func:`jaxslam.grid.filter.coarse_to_fine`), and with
+    ``config.constrain_matches`` :func:`constrained_pose` from ``start``.
+
+    Returns:
+        ``(pose, score, count)``: the match, its raw score (a sum over the beams) and
+        the number of matched beams (at least 1).
+    """
+    best, best_score = coarse_to_fine(read, local_points, mask, start, sqrt_cov, params, config, center,
+                                      prior_mean=prior_mean)
+    count = jnp.maximum(jnp.sum(mask), 1).astype(start.dtype)
+    if config.constrain_matches:
+        best = constrained_pose(score_fn, best, start, best_score, count, params)
+    return best, best_score, count
+
+
 def constrained_pose(score_fn, matched: Array, start: Array, score: Array, count: Array,
                      params: GridSlamParams) -> Array:
     """``matched`` with its heading, and of its position correction from ``start`` only
@@ -296,14 +314,13 @@ def tracked_noise_scale(params: GridSlamParams, config: GridSlamConfig) -> Array
     map, is hardly worse than the others. So with tracking the motion-proportional
     noise of every keyframe is scaled by :math:`\kappa`, also where matches were
     refused. Measured (30 particles, the GMapping-style filter, relations error mean,
-    seeds 0-2; see the note of issue 10): perturbed Intel (low odometry noise) 1.08 /
+    seeds 0-2): perturbed Intel (low odometry noise) 1.08 /
     1.94 / 0.78 m at :math:`\kappa = 1`, 0.047 / 0.053 / 0.043 m at 0.2; perturbed
     Edmonton (high) 0.80 / 1.05 / 1.10 m against 0.112 / 0.096 / 0.119 m; raw Intel
     0.030 m against 0.026 / 0.027 m. Scaling only the scans whose match was trusted
     (full noise after a refused match) was worse on Edmonton (0.42-1.19 m): refused
     matches are mostly sparse scenes, where wide proposals lose particles.
-    In between (``srupf-gm``, seeds 0-4, worst seed; ``docs/results.md``,
-    loop-closure section): :math:`\kappa` = 0.6 gave csail-high 0.090 against 0.115 m and Intel
+    In between (``srupf-gm``, seeds 0-4, worst seed): :math:`\kappa` = 0.6 gave csail-high 0.090 against 0.115 m and Intel
     0.035 against 0.045 m, but MIT Killian 3.69 against 1.50 m; 0.4 failed an Intel
     seed (0.378 m).
     """
@@ -324,13 +341,11 @@ def keyframe_noise_scale(params: GridSlamParams, config: GridSlamConfig, refused
     :math:`\kappa` = 0.2 draws proposals a fifth as wide as that error. Where the
     odometry jumped (the corrected campus log's sideways steps, scan 238: 1 m in the
     reference, 0.09 m between the scans) the place where the scan fits lay 24 standard
-    deviations from the proposal and the bounded matcher turned the heading instead
-    (``docs/results.md``, suite v5.22). The campus's later revisits, where every match
+    deviations from the proposal and the bounded matcher turned the heading instead. The campus's later revisits, where every match
     scores 0.003-0.08 of the beams, lost seeds the same way.
 
     Measured with the recovery from odometry jumps (``config.recover_radius`` 1.5 m;
-    ``srupf-gm``, 30 particles, perturbed campus, ten seeds; ``docs/results.md``, suite
-    v5.23): relations error mean over the seeds 0.117 m, worst seed 0.184 m at 0.5,
+    ``srupf-gm``, 30 particles, perturbed campus, ten seeds): relations error mean over the seeds 0.117 m, worst seed 0.184 m at 0.5,
     against 1.046 / 4.890 m at 1 (the odometry's full noise: in sparse stretches, whose
     scans cannot pull a particle back, keyframes 9-12 deg off) and 0.998 / 2.639 m
     without either (GMapping C++: 0.452 / 2.420 m). Seeds 10-19 at 0.5 were less lucky
@@ -427,7 +442,7 @@ def scan_trajectory(first_pose: np.ndarray, keyframe_flags: np.ndarray, keyframe
 
 
 __all__ = [
-    "constrained_pose", "constrained_shift", "is_keyframe", "per_scan", "scan_trajectory", "track",
+    "constrained_pose", "constrained_shift", "is_keyframe", "keyframe_match", "per_scan", "scan_trajectory", "track",
     "keyframe_noise_scale",
     "tracked_noise_scale",
 ]

@@ -70,8 +70,8 @@ class GridSlamConfig:
             :func:`jaxslam.grid.experiment.make_config` turns it on for SRUPF-GM and
             leaves it off for the GMapping-style filter (measured in the module
             docstring); ``jaxslam run --loop-closure`` / ``--no-loop-closure`` choose.
-        closure_radius: the search's reach in position (m, each axis; 6 m since
-            session 44, measured in :mod:`jaxslam.grid.closure`).
+        closure_radius: the search's reach in position (m, each axis; the choice
+            of 6 m is explained in :mod:`jaxslam.grid.closure`).
         closure_turn: the search's reach in heading (rad, either way).
         closure_radius_far: the longest reach in position (m, a disc) of the search
             that grows with the odometry distance since the last closure
@@ -280,7 +280,7 @@ walls the maps held from keyframes a metre apart. With 0.5 m: none of 100 such r
 and none of 30 whole runs failed, MIT Killian scored 1.01-1.50 m against 1.52-2.06 m
 (seeds 0-2), FR079 0.037-0.038 m against 0.034-0.035 m, the perturbed logs as before
 or better but for one Seattle seed (0.144 against 0.062 m), and a run takes about a
-third longer (``docs/results.md``, robustness section). Stressed from four filter states that its
+third longer. Stressed from four filter states that its
 own parameters made (``--own-base``), 0.5 m failed 1 of 80 runs, 1 m 4 of 80. The
 GMapping-style filter keeps :data:`GMAPPING_KEYFRAMES`: with 0.5 m it failed 3 of 10
 whole Intel runs against 2, and 16 of 120 stressed runs from its own states against
@@ -296,7 +296,7 @@ def default_keyframes(algorithm: str) -> tuple[float, float, float]:
 def refused_noise_default(algorithm: str) -> float:
     """``track_refused_noise_scale`` by default: 0.5 for SRUPF-GM (with the recovery
     from odometry jumps, :func:`jaxslam.grid.experiment.recover_default`; measured over
-    the whole robustness suite, ``docs/results.md``, suite v5.23), -1 (off: the
+    the whole robustness suite, ``benchmarks/grid_robustness.py``), -1 (off: the
     proposals keep ``track_noise_scale`` after refused matches) for the other filters,
     which it was not measured on."""
     return 0.5 if algorithm == "srupf-gm" else -1.0
@@ -442,6 +442,7 @@ class GridSlamInfo(NamedTuple):
     track_closed: Array  # () bool: the loop-closure search's pose replaced the local match, or a closure was undone
     track_conflict: Array  # () share of the tracking match's beams ending in known free space
     track_undo: Array  # (4,) a closure undone here: scans since it was taken, its correction (x, y, θ); else 0
+    log_likelihood_increment: Array  # () log sum_m w_m p(z | x_m, m_m)^weight_gain of a keyframe applied here; else 0
 
 
 class Odometry(NamedTuple):

@@ -29,7 +29,6 @@ z, roll and pitch zero. Host-side only; never imports jax.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 from pathlib import Path
@@ -40,6 +39,7 @@ import numpy as np
 from jaxslam.datasets.paths import DataFormatError, find
 from jaxslam.datasets.reader import numeric_rows
 from jaxslam.datasets.registry import DATASETS
+from jaxslam.datasets.relations import Relations
 from jaxslam.metrics.trajectory_io import se2_between
 
 __all__ = [
@@ -58,28 +58,6 @@ DATASET_RELATIONS = {info.name: info.relations for info in DATASETS.values() if 
 that have one (a view of :data:`jaxslam.datasets.registry.DATASETS`)."""
 
 _PLANAR_TOL = 1e-9
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class Relations:
-    """Ground-truth relations, in file order.
-
-    Attributes:
-        path: the file read (None when built in memory).
-        t1: (R,) float64 stamp of the reference pose.
-        t2: (R,) float64 stamp of the other pose.
-        deltas: (R, 3) float64 pose at ``t2`` in the frame of the pose at ``t1``.
-        lines: (R,) int64 1-based line numbers.
-    """
-
-    path: Path | None
-    t1: np.ndarray
-    t2: np.ndarray
-    deltas: np.ndarray
-    lines: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.t1.shape[0])
 
 
 class RelationErrors(NamedTuple):

@@ -51,6 +51,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.core import se2
+from jaxslam.core.numerics import safe_atan2, safe_sqrt
 from jaxslam.core.sigma import UTParams, sigma_points, ut_weights
 from jaxslam.core.sqrt import sqrt_ut_moments
 
@@ -105,13 +106,10 @@ def polar_increment(increment: Array) -> PolarIncrement:
     """
     dx, dy = increment[..., 0], increment[..., 1]
     backwards = dx < 0
-    length = jnp.sqrt(dx * dx + dy * dy)
+    length = safe_sqrt(dx * dx + dy * dy)  # finite gradients at zero motion
     length = jnp.where(backwards, -length, length)
-    # Double where: atan2(0, 0) has a NaN gradient, so feed a safe argument.
     moving = length != 0
-    sx = jnp.where(moving, jnp.where(backwards, -dx, dx), 1.0)
-    sy = jnp.where(moving, jnp.where(backwards, -dy, dy), 0.0)
-    bearing = jnp.where(moving, jnp.arctan2(sy, sx), 0.0)
+    bearing = safe_atan2(jnp.where(backwards, -dy, dy), jnp.where(backwards, -dx, dx), defined=moving)
     return PolarIncrement(length, increment[..., 2], bearing)
 
 
@@ -167,8 +165,9 @@ def motion_noise_sqrt(
 def augment(pose: Array, pose_sqrt_cov: Array, noise_sqrt: Array) -> tuple[Array, Array]:
     """Eq. (1): ``mu_aug = [pose; 0]`` and the block-diagonal lower factor."""
     dtype = pose.dtype
-    mean = jnp.concatenate([pose, jnp.zeros((2,), dtype)])
-    chol = jnp.zeros((5, 5), dtype)
+    q = noise_sqrt.shape[0]
+    mean = jnp.concatenate([pose, jnp.zeros((q,), dtype)])
+    chol = jnp.zeros((3 + q, 3 + q), dtype)
     chol = chol.at[:3, :3].set(pose_sqrt_cov).at[3:, 3:].set(noise_sqrt.astype(dtype))
     return mean, chol
 
@@ -203,18 +202,27 @@ def unscented_predict(
 
 
 def sqrt_unscented_predict(
-    pose: Array, pose_sqrt_cov: Array, increment: Array, noise_sqrt: Array, ut_params: UTParams
+    pose: Array, pose_sqrt_cov: Array, increment: Array, noise_sqrt: Array, ut_params: UTParams,
+    motion=augmented_motion,
 ) -> Prediction:
     """Square-root unscented prediction, eqs. (1)-(8) of Zandara & Nicholson.
 
     Sigma points of the augmented state, ``f`` applied to each, the mean (6), a QR of
     the weighted deviations of points ``1..2n`` (7) and a rank-1 Cholesky update (a
     downdate if ``W^c_0 < 0``) with the zeroth deviation (8).
+
+    Args:
+        pose: ``(3,)``; pose_sqrt_cov: its lower factor ``(3, 3)``.
+        increment: the control, as ``motion`` takes it.
+        noise_sqrt: ``(q, q)`` lower factor of the process noise.
+        ut_params: the unscented transform's scalings.
+        motion: ``f(augmented (3 + q,), control) -> pose (3,)``
+            (:class:`jaxslam.base.MotionModel`); SRUPF-GM's by default.
     """
     mean_aug, chol_aug = augment(pose, pose_sqrt_cov, noise_sqrt)
-    wm, wc, _ = ut_weights(5, ut_params, pose.dtype)
+    wm, wc, _ = ut_weights(mean_aug.shape[0], ut_params, pose.dtype)
     points = sigma_points(mean_aug, chol_aug, ut_params)
-    propagated = jax.vmap(augmented_motion, (0, None))(points, increment)
+    propagated = jax.vmap(motion, (0, None))(points, increment)
     mean, chol, _ = sqrt_ut_moments(propagated, wm, wc, se2.pose_mean, se2.pose_residual)
     return Prediction(mean, chol, chol @ chol.T, propagated, wm, wc)
 

@@ -14,8 +14,8 @@ dtype against the run being resumed; a corrupt file or any mismatch raises
 
 A checkpoint also records :func:`code_digest`, a digest of jaxslam's own source and of
 the JAX and jaxlib versions, and only the same digest resumes it. Another version can
-run other programs (a new default, such as the loop-closure search's reach in session
-44, a change in the order of float operations, or another XLA) while the state keeps
+run other programs (a new default, such as another reach of the loop-closure search,
+a change in the order of float operations, or another XLA) while the state keeps
 its shapes, so a resumed run would silently join two versions' runs, equal to neither
 one's straight run.
 """

@@ -19,7 +19,7 @@ options:
   13.1 s -> 8.6 s, with the trajectory and the map bit for bit the same.
 
 * ``xla_cpu_parallel_codegen_split_count = 8``: the same run whatever the thread
-  count or CPU set (session 47). XLA splits the generated LLVM module into parts that
+  count or CPU set. XLA splits the generated LLVM module into parts that
   it compiles in parallel, and with the loop emitters the split changes the machine
   code, and so the rounding, of some loops. Left to XLA, the split follows the
   thread pool: with one thread (``--threads 1``, or a process pinned to one core

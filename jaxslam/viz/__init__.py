@@ -1,1 +1,3 @@
 """Live views of running filters (optional: ``pip install "jaxslam[viz]"``)."""
+
+__all__ = ["rerun_log"]

@@ -50,13 +50,13 @@ def test_log_noise_round_trip():
 
 @pytest.mark.long
 def test_forward_pass_is_the_filter_bit_for_bit(setup):
-    """The filter state carried by the differentiable run is srupf.scan_run's, bit for
+    """The filter state carried by the differentiable run is srupf.run's, bit for
     bit (poses, factors, weights, maps), and the differentiable copy of the pose factors
     equals the filter's own."""
     log, config, params, inputs = setup
     key = jax.random.PRNGKey(0)
     state = srupf.init(key, params, config, inputs.first_scan, inputs.initial_pose)
-    reference, info = srupf.scan_run(key, state, inputs.controls, inputs.observations, params, config)
+    reference, info = srupf.run(key, state, inputs.controls, inputs.observations, params, config)
 
     @jax.jit
     def carried(params):

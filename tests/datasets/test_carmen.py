@@ -13,12 +13,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxslam.datasets.carmen import (
-    guess_angular_resolution,
-    load_carmen,
-    load_dataset_log,
-    select_keyframes,
-)
+from jaxslam.datasets.carmen import guess_angular_resolution, load_carmen, select_keyframes
+from jaxslam.datasets.registry import load_dataset_log
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError, find
 from jaxslam.datasets.registry import lookup
 

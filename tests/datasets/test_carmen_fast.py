@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxslam.datasets import carmen
+from jaxslam.datasets import carmen, registry
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
 from jaxslam.datasets.reader import read_bytes
 from jaxslam.datasets.registry import lookup
@@ -23,7 +23,7 @@ from tests.datasets.test_carmen import _corrupted_log
 
 def _load(path_or_name, slow: bool, **options):
     """``(log, None)`` or ``(None, error message)``, with the bulk path on or off."""
-    loader = carmen.load_dataset_log if isinstance(path_or_name, str) else carmen.load_carmen
+    loader = registry.load_dataset_log if isinstance(path_or_name, str) else carmen.load_carmen
     try:
         if slow:
             with mock.patch.object(carmen, "read_lines_fast", lambda *args: None):

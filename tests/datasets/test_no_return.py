@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from jaxslam.datasets import carmen
-from jaxslam.datasets.carmen import detect_no_return, load_carmen, load_dataset_log
+from jaxslam.datasets.carmen import detect_no_return, load_carmen
+from jaxslam.datasets.registry import load_dataset_log
 from jaxslam.datasets.paths import DatasetNotFoundError
 
 BEAMS = 180

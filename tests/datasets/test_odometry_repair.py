@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxslam.datasets.carmen import load_carmen, load_dataset_log
+from jaxslam.datasets.carmen import load_carmen
+from jaxslam.datasets.registry import load_dataset_log
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_exp, se2_log
 from jaxslam.datasets.odometry_repair import interval_speeds, repair_reverse_odometry, repair_stale_odometry
 from jaxslam.datasets.paths import DatasetNotFoundError
@@ -250,7 +251,7 @@ def test_real_logs_stale_stretches():
 def test_the_perturbed_logs_have_no_stale_stretch(tmp_path):
     """The suite's perturbed logs (seed 0 of each, both levels) give the repair nothing
     to do, so their runs are those from before it (seeds 0-19 high and 0-9 low were
-    checked once by hand, session 71)."""
+    checked by hand against the log)."""
     from jaxslam.datasets.perturb import CORRECTED_LOGS, make_perturbed_log
 
     try:

@@ -182,6 +182,6 @@ def test_the_default_programs_hold_the_score_kernel_a_few_times(sim, monkeypatch
         gmapping_config = make_config("gmapping", 2, config.layout, config.num_beams, config.max_points)
         for module, cfg, copies in ((srupf, config, 6), (gmapping, gmapping_config, 6)):
             calls.clear()
-            jax.eval_shape(lambda s: module.scan_step(jax.random.PRNGKey(0), s, jnp.zeros(3), scans[3], params, cfg),
+            jax.eval_shape(lambda s: module.step(jax.random.PRNGKey(0), s, jnp.zeros(3), scans[3], params, cfg),
                            state)
             assert len(calls) == copies, (module.__name__, len(calls))

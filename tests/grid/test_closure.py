@@ -183,8 +183,8 @@ def test_a_guess_metres_off_is_closed_onto_the_map(sim, tracked):
 
 def test_the_default_reach_closes_a_guess_beyond_four_metres(sim, tracked):
     """The odometry puts scan 3 4.6 m off along the corridor (MIT Killian's right
-    closures jumped up to 4.7 m in session 43's runs): the default reach (6 m since
-    session 44) closes it onto the map; the old 4 m reach cannot (the test can fail)."""
+    closures jump up to 4.7 m): the default reach (6 m) closes it onto the map; a
+    4 m reach cannot (the test can fail)."""
     track, state, scans, params, config = tracked
     at_once = params._replace(closure_confirm=np.float64(1.0))
     assert config.closure_radius == 6.0

@@ -38,7 +38,8 @@ def test_short_real_log_run():
         result = run_grid_slam("intel", "gmapping", particles=4, seed=0, progress=False, max_keyframes=12)
     except DatasetNotFoundError:
         pytest.skip("intel log not available")
-    from jaxslam.datasets.carmen import load_dataset_log, select_keyframes
+    from jaxslam.datasets.carmen import select_keyframes
+    from jaxslam.datasets.registry import load_dataset_log
 
     # The log is cut where GMapping's odometry rule reaches 12 keyframes; the filter's
     # own keyframes follow the tracked motion, so their count is close to 12.
@@ -64,11 +65,11 @@ def test_grid_programs_compiled_with_jaxslam_options_equal_xla_defaults(monkeypa
         ours = run_grid_slam("intel", "gmapping", particles=4, seed=0, progress=False, max_keyframes=12)
     except DatasetNotFoundError:
         pytest.skip("intel log not available")
-    assert driver.chunk_runner(gmapping.scan_step, ours.config).jaxslam_compiler_options == compiler.OPTIONS
+    assert driver.chunk_runner(gmapping.step, ours.config).jaxslam_compiler_options == compiler.OPTIONS
     assert ours.summary()["xla_compiler_options"] == compiler.OPTIONS
     monkeypatch.setenv(compiler.ENV_VAR, "xla")
     xla = run_grid_slam("intel", "gmapping", particles=4, seed=0, progress=False, max_keyframes=12)
-    assert driver.chunk_runner(gmapping.scan_step, xla.config).jaxslam_compiler_options == {}
+    assert driver.chunk_runner(gmapping.step, xla.config).jaxslam_compiler_options == {}
     assert xla.summary()["xla_compiler_options"] == {}
     assert xla.compile_s > 0  # compiled anew, not the program of the first run
     np.testing.assert_array_equal(ours.trajectory, xla.trajectory)
@@ -110,7 +111,8 @@ def test_fr079_unseen_rotations_are_tracked_with_the_defaults():
     every scan is tracked against the best map, so the keyframe rule and the
     proposals see those turns; without tracking (GMapping's odometry rule) the unseen
     rotation piles up between keyframes and the heading is lost there."""
-    from jaxslam.datasets.carmen import load_dataset_log, select_keyframes
+    from jaxslam.datasets.carmen import select_keyframes
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.metrics.relations import load_dataset_relations
 
     try:

@@ -43,7 +43,7 @@ def run_filter(module, config, dtype, seed=0, **overrides):
                  jnp.asarray(odom[0], dtype))
     xs_u = Odometry(jnp.asarray(controls, dtype), jnp.asarray(np.diff(kf), dtype))
     xs_z = Scan(jnp.asarray(ranges[1:], dtype), jnp.asarray(log.valid[kf[1:]]), jnp.zeros(len(kf) - 1, dtype))
-    state, info = module.run(key, state, xs_u, xs_z, params, config)
+    state, info = module.keyframe_run(key, state, xs_u, xs_z, params, config)
     assert int(state.status.code) == 0
     traj = best_trajectory(info.poses, info.ancestors, int(best_particle(state)))
     return state, info, np.concatenate([odom[:1], traj]), params
@@ -109,10 +109,10 @@ def test_no_recompile_when_params_change():
     """Traced Params: new noise levels, thresholds and increments reuse the compilation."""
     config = make_config("gmapping", particles=4)
     run_filter(gmapping, config, jnp.float32, seed=1)
-    after_first = gmapping.run._cache_size()
+    after_first = gmapping.keyframe_run._cache_size()
     run_filter(gmapping, config, jnp.float32, seed=2, srr=0.05, l_occ=6.0, linear_step=0.03, resample_threshold=0.3,
                usable_range=15.0, weight_gain=0.1)
-    assert gmapping.run._cache_size() == after_first
+    assert gmapping.keyframe_run._cache_size() == after_first
 
 
 def test_downdate_keeps_factor_pd_over_run():

@@ -77,7 +77,7 @@ def check_refcounts(maps):
 
 @functools.cache
 def intel_segment(scans: int = 40):
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
 
     try:
         log = load_dataset_log("intel")

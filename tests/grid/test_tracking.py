@@ -236,11 +236,15 @@ def test_scan_trajectory_composes_keyframe_poses_and_motion():
     np.testing.assert_allclose(trajectory, np.array(expected), atol=1e-12)
 
 
-def test_scan_step_of_each_filter_is_exported():
+def test_each_filter_steps_every_scan_and_keeps_its_keyframe_update():
+    """A grid filter's ``step`` is the per-scan step (:func:`per_scan` of its keyframe
+    update), the one ``run_grid_slam`` runs; ``keyframe_step`` is that update alone."""
     from jaxslam.grid import gmapping
 
     for module in (gmapping, srupf):
-        assert callable(module.scan_step) and callable(module.scan_run)
+        assert module.step.__wrapped__.__name__ == "scan_step"
+        assert module.keyframe_step.__wrapped__ is module._step
+        assert callable(module.run) and callable(module.keyframe_run)
 
 
 def test_keyframe_correction_moves_only_along_constrained_directions(sim):
@@ -322,7 +326,7 @@ def test_gmapping_correction_moves_only_along_constrained_directions(sim):
     assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096, coarse_iterations=0).coarse_iterations == 0
     assert make_config("gmapping", 2, layout, sim.num_beams, 4096).coarse_iterations == 0
     assert make_config("srupf-gm-npc", 2, layout, sim.num_beams, 4096).coarse_iterations == 0
-    # The recovery from an odometry jump: SRUPF-GM's default (docs/results.md, suite v5.23),
+    # The recovery from an odometry jump: SRUPF-GM's default (jaxslam.grid.experiment.recover_default),
     # off for the others.
     assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).recover_radius == RECOVER_RADIUS > 0
     assert make_config("gmapping", 2, layout, sim.num_beams, 4096).recover_radius == 0.0
@@ -364,7 +368,7 @@ def test_keyframe_control_carries_the_tracked_noise_scale(sim):
 
         # track_refused_noise_scale (negative: off): that scale for a keyframe whose
         # interval holds a refused match, kappa otherwise. SRUPF-GM's default is 0.5,
-        # the others' off (docs/results.md, suite v5.23).
+        # the others' off.
         assert float(default_params(sim.angles).track_refused_noise_scale) == 0.5
         assert float(default_params(sim.angles, algorithm="gmapping").track_refused_noise_scale) < 0
         wide = params._replace(track_refused_noise_scale=np.float64(1.0))

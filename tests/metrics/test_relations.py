@@ -12,7 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxslam.datasets.carmen import load_dataset_log, select_keyframes
+from jaxslam.datasets.carmen import select_keyframes
+from jaxslam.datasets.registry import load_dataset_log
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError, find
 from jaxslam.metrics.relations import (
     Relations,
