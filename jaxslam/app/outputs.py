@@ -89,7 +89,7 @@ STAGE_PREFIX = ".jaxslam-partial-"
 def prepare_folder(out: Path) -> Path:
     """``out`` if a run can write its folder there, else a ``RunError`` naming it
     (an existing file, a folder or parent that cannot be written). Creates nothing."""
-    from jaxslam.app.runs import RunError
+    from jaxslam.app.errors import RunError
 
     if out.exists() and not out.is_dir():
         raise RunError(f"--out {str(out)!r}: is a file, not a folder")
@@ -117,7 +117,7 @@ def marked_run(out: Path, run_args: dict):
     continued with ``--resume``.
     """
     from jaxslam.app.interrupts import on_interrupt
-    from jaxslam.app.runs import RunError
+    from jaxslam.app.errors import RunError
 
     try:
         out.mkdir(parents=True, exist_ok=True)

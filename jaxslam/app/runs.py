@@ -24,13 +24,10 @@ from jaxslam.runtime.compiler import cpus_allowed, set_threads
 from jaxslam.datasets.checks import MAX_ODOMETRY_STEP, check_laser_log
 from jaxslam.datasets.paths import DatasetNotFoundError
 from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
+from jaxslam.app.errors import RunError
 from jaxslam.app.outputs import marked_run, prefetch_plotting, prepare_folder, write_summary, write_with_figures
 
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
-
-
-class RunError(ValueError):
-    """A user-facing problem with a run's arguments (the CLI exits with status 2)."""
 
 
 def _kind_of(algorithm: str) -> str:
