@@ -480,6 +480,32 @@ def _checked(grid: OccupancyMap) -> OccupancyMap:
     return grid
 
 
+def segment_map(segments: np.ndarray, bounds, resolution: float = 0.05, margin: float = 1.0) -> OccupancyMap:
+    """The map of a world of line segments (a simulator's walls, :mod:`jaxslam.datasets.laser_sim`).
+
+    Every cell a segment passes through is occupied (the segment sampled at a quarter
+    of a cell); the other cells inside ``bounds`` ``(xmin, ymin, xmax, ymax)`` are
+    free, those in the ``margin`` around them unknown.
+    """
+    segments = np.asarray(segments, np.float64).reshape(-1, 4)
+    x0, y0 = bounds[0] - margin, bounds[1] - margin
+    width = int(math.ceil((bounds[2] - bounds[0] + 2 * margin) / resolution))
+    height = int(math.ceil((bounds[3] - bounds[1] + 2 * margin) / resolution))
+    cols = (np.arange(width) + 0.5) * resolution + x0
+    rows = (np.arange(height) + 0.5) * resolution + y0
+    inside = ((rows[:, None] >= bounds[1]) & (rows[:, None] <= bounds[3])
+              & (cols[None, :] >= bounds[0]) & (cols[None, :] <= bounds[2]))
+    occupancy = np.where(inside, FREE_VALUE, UNKNOWN_VALUE).astype(np.int8)
+    for ax, ay, bx, by in segments:
+        count = int(math.ceil(math.hypot(bx - ax, by - ay) / (0.25 * resolution))) + 1
+        t = np.linspace(0.0, 1.0, count)
+        c = np.floor((ax + t * (bx - ax) - x0) / resolution).astype(np.int64)
+        r = np.floor((ay + t * (by - ay) - y0) / resolution).astype(np.int64)
+        ok = (c >= 0) & (c < width) & (r >= 0) & (r < height)
+        occupancy[r[ok], c[ok]] = OCCUPIED_VALUE
+    return _checked(OccupancyMap(occupancy=occupancy, resolution=float(resolution), origin=(x0, y0, 0.0)))
+
+
 def load_map(path: os.PathLike | str) -> OccupancyMap:
     """Read a saved map: a run folder, a ``map.npz`` or a ``map_server`` YAML file.
 
@@ -521,5 +547,6 @@ __all__ = [
     "parse_map_yaml",
     "read_pgm_image",
     "save_map_npz",
+    "segment_map",
     "threshold_values",
 ]
