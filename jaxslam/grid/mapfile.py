@@ -36,8 +36,8 @@ use (numbers, plain or quoted strings, flow lists ``[a, b, c]``, ``#`` comments)
 PyYAML is not needed.
 
 As in ROS's AMCL (``convertMap``), a cell is *occupied* where its value is 100, *free*
-where it is 0 and unknown otherwise. A map without a free cell is refused: nothing
-could be localized in it.
+where it is 0 and unknown otherwise. A map without a free cell is refused unless
+``require_free=False``: nothing could be localized in it.
 
 Host-side NumPy. Every problem with a file is a
 :class:`~jaxslam.datasets.paths.DataFormatError` (file, line where there is one,
@@ -229,11 +229,11 @@ def _read_npz(path: Path) -> OccupancyMap:
     with np.errstate(over="ignore"):
         prob = 1.0 / (1.0 + np.exp(-log_odds.astype(np.float64)))
     tile = int(arrays["tile"]) if "tile" in arrays else None
-    return _checked(OccupancyMap(
+    return OccupancyMap(
         occupancy=threshold_values(prob, occ_th, free_th), resolution=resolution, origin=origin,
         log_odds=log_odds, cells=cells, log_odds_unit=unit, tile=tile, occupied_thresh=occ_th,
         free_thresh=free_th, source=path,
-    ))
+    )
 
 
 # --------------------------------------------------------------------------- map_server YAML
@@ -469,8 +469,8 @@ def _read_yaml_map(path: Path) -> OccupancyMap:
         raise DataFormatError(path, lines["image"], f"the map image {str(image_path)!r} does not exist")
     pixels, has_alpha = _read_image(image_path)
     occupancy = image_to_occupancy(pixels, has_alpha, mode, bool(negate), occ_th, free_th)
-    return _checked(OccupancyMap(occupancy=occupancy, resolution=resolution, origin=origin,
-                                 occupied_thresh=occ_th, free_thresh=free_th, source=path))
+    return OccupancyMap(occupancy=occupancy, resolution=resolution, origin=origin,
+                        occupied_thresh=occ_th, free_thresh=free_th, source=path)
 
 
 def _checked(grid: OccupancyMap) -> OccupancyMap:
@@ -506,13 +506,15 @@ def segment_map(segments: np.ndarray, bounds, resolution: float = 0.05, margin: 
     return _checked(OccupancyMap(occupancy=occupancy, resolution=float(resolution), origin=(x0, y0, 0.0)))
 
 
-def load_map(path: os.PathLike | str) -> OccupancyMap:
+def load_map(path: os.PathLike | str, require_free: bool = True) -> OccupancyMap:
     """Read a saved map: a run folder, a ``map.npz`` or a ``map_server`` YAML file.
 
     Args:
         path: a ``jaxslam run`` output folder (``map.npz`` is read, else
             ``map.yaml``), a ``.npz`` written by :func:`save_map_npz`, or a YAML file
             of the ROS ``map_server`` convention (see the module docstring).
+        require_free: refuse a map without a free cell (nothing could be localized
+            in it).
 
     Returns:
         The :class:`OccupancyMap`.
@@ -534,9 +536,8 @@ def load_map(path: os.PathLike | str) -> OccupancyMap:
         raise DatasetNotFoundError(f"map {str(path)!r} does not exist")
     with open(path, "rb") as handle:
         zipped = handle.read(4) == b"PK\x03\x04"
-    if zipped or path.suffix == ".npz":
-        return _read_npz(path)
-    return _read_yaml_map(path)
+    grid = _read_npz(path) if zipped or path.suffix == ".npz" else _read_yaml_map(path)
+    return _checked(grid) if require_free else grid
 
 
 __all__ = [
