@@ -146,10 +146,21 @@ def plot_localization(grid, trajectory, snapshots, times, title: str = ""):
     for (scan, poses), colour in zip(snapshots, colours):
         xy = to_map(poses)
         label = "start" if scan < 0 else f"scan {scan} ({times[scan] - times[0]:.1f} s)"
-        ax.scatter(xy[:, 0], xy[:, 1], s=2, color=colour, alpha=0.5, lw=0, label=f"particles, {label}")
+        # a wide cloud in small dots, a compact one (tracking) in larger ones
+        size = 2 if np.ptp(xy, axis=0).max(initial=0) > 5.0 else 10
+        ax.scatter(xy[:, 0], xy[:, 1], s=size, color=colour, alpha=0.6, lw=0, label=f"particles, {label}")
     path = to_map(trajectory)
     ax.plot(path[:, 0], path[:, 1], "-", color="tab:green", lw=1.0, label="estimate")
     ax.plot(path[-1:, 0], path[-1:, 1], "o", color="tab:green", ms=4)
+    known = np.nonzero(occupancy != -1)
+    if known[0].size:  # the view: the known cells and 1 m around them
+        pad = 1.0
+        lo = np.array([known[1].min(), known[0].min()]) * grid.resolution - pad
+        hi = (np.array([known[1].max(), known[0].max()]) + 1) * grid.resolution + pad
+        if abs(yaw) <= 1e-9:
+            lo, hi = lo + (ox, oy), hi + (ox, oy)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)" if abs(yaw) <= 1e-9 else "map x (m)")
     ax.set_ylabel("y (m)" if abs(yaw) <= 1e-9 else "map y (m)")

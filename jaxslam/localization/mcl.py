@@ -198,8 +198,11 @@ class MclState(NamedTuple):
 
 class MclInfo(NamedTuple):
     """What a step did. ``ess``, ``resampled``, ``ancestors`` and
-    ``log_likelihood_increment`` as every filter's ``Info``; ``ess`` is before
-    resampling and relative to all ``N`` slots' weights (unused slots weigh 0)."""
+    ``log_likelihood_increment`` as every filter's ``Info``: ``ess`` before
+    resampling (unused slots weigh 0); ``ancestors`` ``(N,)`` the slot each particle
+    was drawn from, -1 for a free-space draw (injected) and the identity without a
+    resampling; ``log_likelihood_increment`` of the tempered likelihood (0 for a scan
+    not used)."""
 
     ess: Array
     resampled: Array
