@@ -116,8 +116,9 @@ def _strict(value):
     return value
 
 
-def plot_localization(grid, trajectory, snapshots, times, title: str = ""):
-    """The map, the estimated path and the particle clouds of ``snapshots``."""
+def plot_localization(grid, trajectory, snapshots, times, title: str = "", converged: int | None = None):
+    """The map, the estimated path (dotted before the scan ``converged``, where the
+    estimate jumps between hypotheses) and the particle clouds of ``snapshots``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -150,7 +151,11 @@ def plot_localization(grid, trajectory, snapshots, times, title: str = ""):
         size = 2 if np.ptp(xy, axis=0).max(initial=0) > 5.0 else 10
         ax.scatter(xy[:, 0], xy[:, 1], s=size, color=colour, alpha=0.6, lw=0, label=f"particles, {label}")
     path = to_map(trajectory)
-    ax.plot(path[:, 0], path[:, 1], "-", color="tab:green", lw=1.0, label="estimate")
+    start = 0 if converged is None else int(converged)
+    if start > 0:
+        ax.plot(path[: start + 1, 0], path[: start + 1, 1], ":", color="tab:green", lw=0.8,
+                label="estimate before convergence")
+    ax.plot(path[start:, 0], path[start:, 1], "-", color="tab:green", lw=1.0, label="estimate")
     ax.plot(path[-1:, 0], path[-1:, 1], "o", color="tab:green", ms=4)
     known = np.nonzero(occupancy != -1)
     if known[0].size:  # the view: the known cells and 1 m around them
@@ -165,7 +170,7 @@ def plot_localization(grid, trajectory, snapshots, times, title: str = ""):
     ax.set_xlabel("x (m)" if abs(yaw) <= 1e-9 else "map x (m)")
     ax.set_ylabel("y (m)" if abs(yaw) <= 1e-9 else "map y (m)")
     ax.set_title(title, fontsize=9)
-    ax.legend(loc="upper right", fontsize=7, markerscale=4, framealpha=0.8)
+    ax.legend(loc="upper right", fontsize=7, markerscale=2, framealpha=0.8)
     return fig
 
 
@@ -230,8 +235,8 @@ def run(args) -> dict[str, Any]:
 
         mode = "global start" if pose is None else "start at the given pose"
         title = f"MCL in {Path(grid.source).name}: {Path(name).name}, {args.particles} particles, {mode}"
-        save(plot_localization(grid, result.trajectory, result.snapshots, result.times, title),
-             out / "localization.png")
+        save(plot_localization(grid, result.trajectory, result.snapshots, result.times, title,
+                               record.get("converged_scan")), out / "localization.png")
     (out / "summary.json").write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
     return record
 

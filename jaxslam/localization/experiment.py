@@ -6,9 +6,10 @@ filter step, its control the odometry increment since the previous scan. The run
 a jitted ``lax.scan`` over chunks of ``chunk`` scans (one program for full chunks, one
 for the last); at a few chunk ends the particle cloud is kept for the figure.
 
-Convergence, judged by the filter itself: the first scan from which, at every later
-measurement, the cloud's spread is at most ``converged_spread`` metres and the
-estimate's bins hold at least ``converged_weight`` of the weight. With a reference
+Convergence, judged by the filter itself: the first scan from which, at ``hold``
+measurements in a row, the cloud's spread is at most ``converged_spread`` metres and
+the estimate's bins hold at least ``converged_weight`` of the weight
+(``compact_fraction``: of the measurements from then on, those where that holds). With a reference
 trajectory (:func:`tracking_errors`), convergence is the first scan from which the
 estimate stays within a distance and an angle of it.
 """
@@ -197,24 +198,19 @@ def localize(
     )
 
 
-def converged_from(ok: np.ndarray, considered: np.ndarray | None = None) -> int | None:
-    """The first index from which ``ok`` holds at every later ``considered`` index."""
-    ok = np.asarray(ok, bool)
-    considered = np.ones_like(ok) if considered is None else np.asarray(considered, bool)
-    bad = np.flatnonzero(considered & ~ok)
-    start = 0 if bad.size == 0 else int(bad[-1]) + 1
-    later = np.flatnonzero(considered[start:])
-    if later.size == 0:
-        return None
-    return start
-
-
-def self_convergence(result: LocalizationResult, converged_spread: float = 0.5,
-                     converged_weight: float = 0.9) -> int | None:
-    """The scan from which the cloud stays compact (see the module docstring)."""
+def self_convergence(result: LocalizationResult, converged_spread: float = 0.5, converged_weight: float = 0.9,
+                     hold: int = 10) -> int | None:
+    """The first scan from which the cloud is compact (see the module docstring) at
+    ``hold`` measurements in a row; None if it never is."""
     info = result.info
     ok = (info["spread"] <= converged_spread) & (info["cluster_weight"] >= converged_weight)
-    return converged_from(ok, info["updated"])
+    measured = np.flatnonzero(info["updated"])
+    run = 0
+    for position, scan in enumerate(measured):
+        run = run + 1 if ok[scan] else 0
+        if run >= hold:
+            return int(measured[position - hold + 1])
+    return None
 
 
 def tracking_errors(trajectory: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -250,7 +246,10 @@ def summary(result: LocalizationResult, converged_spread: float = 0.5, converged
         "converged": converged is not None,
         "converged_scan": converged,
         "converged_after_s": None if converged is None else float(times[converged] - times[0]),
-        "convergence_rule": {"spread_m": converged_spread, "cluster_weight": converged_weight},
+        "compact_fraction": None if converged is None else float(np.mean(
+            ((info["spread"] <= converged_spread) & (info["cluster_weight"] >= converged_weight))[converged:][
+                updated[converged:]])),
+        "convergence_rule": {"spread_m": converged_spread, "cluster_weight": converged_weight, "hold": 10},
         "final_pose": [float(v) for v in result.trajectory[-1]],
         "final_spread_m": float(info["spread"][-1]),
         "wall_s": result.wall_s,
@@ -265,7 +264,6 @@ def summary(result: LocalizationResult, converged_spread: float = 0.5, converged
 __all__ = [
     "CLOUD_POINTS",
     "LocalizationResult",
-    "converged_from",
     "localize",
     "log_controls",
     "make_filter_inputs",
