@@ -3,9 +3,10 @@ r"""Occupancy mapping with known poses (host NumPy): the map a corrected traject
 For every scan at a known laser pose, each usable beam adds ``l_occ`` to the log-odds
 of its end point's cell and ``-l_free`` to the cells its ray crosses before it (a
 reading at the range limit clears up to ``free_range`` but marks nothing). Rays are
-sampled every half cell and each cell they reach counts once per beam (a corner a
-ray only grazes may be missed, as by Bresenham's line). The usual inverse sensor
-model (Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 9.1) without a clamp:
+sampled once per cell length, so a cell a ray crosses obliquely may count twice and
+one it only clips may be skipped; the last cell length before the end point is not
+cleared (rays nearly parallel to a wall end in its cells and would otherwise erode
+their neighbours). The usual inverse sensor model (Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 9.1) without a clamp:
 
 .. math:: \ell_c = \sum_{\text{hits in } c} \ell_{occ} - \sum_{\text{rays through } c} \ell_{free}.
 
@@ -64,24 +65,16 @@ def known_pose_log_odds(
     height = int(math.ceil((hi[1] - lo[1]) / resolution))
     hit_count = np.zeros(height * width, np.int64)
     free_count = np.zeros(height * width, np.int64)
-    step = 0.5 * resolution
     for s in range(ranges.shape[0]):
         beams = np.flatnonzero(clear[s] > 0)
         if beams.size:
-            # samples every half cell before the end point (the end cell is the hit's);
-            # a ray's cells come one after another, so each is counted once per beam
-            t = np.arange(int(math.ceil(clear[s, beams].max() / step))) * step
+            # one sample per cell length before the end point (the end cell is the hit's)
+            t = np.arange(int(math.ceil(clear[s, beams].max() / resolution))) * resolution
+            inside = t[None, :] < clear[s, beams][:, None] - resolution
             xs = poses[s, 0] + t[None, :] * np.cos(heading[s, beams])[:, None]
             ys = poses[s, 1] + t[None, :] * np.sin(heading[s, beams])[:, None]
-            cells = (np.floor((ys - lo[1]) / resolution).astype(np.int64) * width
-                     + np.floor((xs - lo[0]) / resolution).astype(np.int64))
-            end = reach[s, beams]
-            end_cells = (np.floor((end[:, 1] - lo[1]) / resolution).astype(np.int64) * width
-                         + np.floor((end[:, 0] - lo[0]) / resolution).astype(np.int64))
-            inside = (t[None, :] < clear[s, beams][:, None]) & (cells != end_cells[:, None])
-            new = np.ones(cells.shape, bool)
-            new[:, 1:] = cells[:, 1:] != cells[:, :-1]
-            cells = cells[inside & new]
+            cells = (np.floor((ys[inside] - lo[1]) / resolution).astype(np.int64) * width
+                     + np.floor((xs[inside] - lo[0]) / resolution).astype(np.int64))
             free_count += np.bincount(cells, minlength=height * width)
         if hits[s].any():
             e = ends[s, hits[s]]

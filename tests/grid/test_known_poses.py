@@ -7,23 +7,26 @@ import numpy as np
 from jaxslam.grid.known_poses import known_pose_log_odds, known_pose_map
 
 
-def test_one_beam_marks_its_end_cell_and_clears_the_cells_before_it():
+def test_one_beam_marks_its_end_cell_and_clears_the_ray_before_it():
     ranges = np.array([[1.0, 30.0]])
     valid = np.array([[True, False]])
     angles = np.array([0.0, np.pi / 2])
     pose = np.array([[0.02, 0.02, 0.0]])
     log_odds, origin = known_pose_log_odds(ranges, valid, angles, pose, resolution=0.1, max_range=30.0,
                                            free_range=2.0, l_occ=0.85, l_free=0.4, margin=0.5)
-    col = lambda x: int(np.floor((x - origin[0]) / 0.1))  # noqa: E731
-    row = lambda y: int(np.floor((y - origin[1]) / 0.1))  # noqa: E731
+    col = lambda x: int(np.floor((x - origin[0]) / 0.1 + 1e-9))  # noqa: E731
+    row = lambda y: int(np.floor((y - origin[1]) / 0.1 + 1e-9))  # noqa: E731
     r0 = row(0.02)
-    assert log_odds[r0, col(1.02)] == np.float32(0.85)  # the hit
-    assert log_odds[r0, col(0.02)] == np.float32(-0.8)  # the robot's cell: both beams
-    np.testing.assert_array_equal(log_odds[r0, col(0.02) + 1:col(1.02)], np.float32(-0.4))  # once each
-    # the "no return" beam (up, the range limit) clears 2 m and marks nothing
-    up = log_odds[row(0.1):row(1.9), col(0.02)]
-    assert np.all(up < 0) and log_odds.max() == np.float32(0.85)
-    once = known_pose_map(log_odds, origin, 0.1)  # one pass: p(free cells) = 0.40, unknown
-    assert once.occupied.sum() == 1 and once.free.sum() == 0
-    four = known_pose_map(4 * log_odds, origin, 0.1)  # as four such scans: -1.6 < logit(0.196)
-    assert four.occupied.sum() == 1 and four.free.sum() == np.sum(log_odds < 0)
+    assert log_odds[r0, col(1.02)] == np.float32(0.85)  # the hit, once
+    ray = log_odds[r0, col(0.12):col(0.82)]  # the ray before it is cleared (a cell may be skipped)
+    assert np.all(ray <= 0) and np.sum(ray < 0) >= ray.size - 1
+    assert log_odds[r0, col(0.97)] == 0.0  # the last cell length before the hit is not
+    # the "no return" beam (up, at the range limit) clears up to 2 m and marks nothing
+    up = log_odds[row(0.12):row(1.82), col(0.02)]
+    assert np.all(up <= 0) and np.sum(up < 0) >= up.size - 2
+    assert log_odds.max() == np.float32(0.85) and np.sum(log_odds > 0) == 1
+    free_below = np.log(0.196 / 0.804)  # map_server's free_thresh as log-odds
+    for scans in (1, 4):
+        grid = known_pose_map(scans * log_odds, origin, 0.1)
+        assert grid.occupied.sum() == 1 and grid.free.sum() == np.sum(scans * log_odds < free_below)
+    assert known_pose_map(4 * log_odds, origin, 0.1).free.sum() >= 20  # about 0.9 m + 1.9 m of rays
