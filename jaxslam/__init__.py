@@ -19,7 +19,10 @@ The public API:
   :func:`default_params`, :func:`make_config`) and the landmark filters'
   (:class:`LandmarkConfig`, :class:`LandmarkParams`, :class:`LandmarkState`,
   :class:`LandmarkInfo`, :class:`Observation`);
-* maps: :func:`save_map` (PGM + YAML and PNG).
+* maps: :func:`save_map` (PGM + YAML and PNG), :func:`load_map` (a run's lossless
+  ``map.npz`` or any ROS ``map_server`` YAML) and :class:`OccupancyMap`;
+* localization in a known map: :func:`mcl`, Monte Carlo localization on the same
+  ``init``/``step`` protocol.
 
 The names are imported on first use: the command line imports this package on every
 ``jaxslam`` call, and importing JAX here would cost ``jaxslam --help`` a second.
@@ -58,6 +61,9 @@ _HOMES = {
     "default_params": "jaxslam.grid.types",
     "save_map": "jaxslam.grid.export",
     "Observation": "jaxslam.feature.filter",
+    "load_map": "jaxslam.grid.mapfile",
+    "OccupancyMap": "jaxslam.grid.mapfile",
+    "mcl": "jaxslam.localization.mcl",
 }
 # The landmark filters' types, under names that say so.
 _RENAMED = {

@@ -11,7 +11,8 @@ layers only; subpackages of one layer do not import each other):
 3. ``metrics``: trajectory and map error (they read reference files through the loaders);
 4. ``base``: the filter protocol;
 5. ``feature`` and ``grid``: the filters and their whole-run entry points;
-6. ``filters`` (the factories) and ``calibrate``;
+6. ``filters`` (the factories), ``calibrate`` and ``localization`` (Monte Carlo
+   localization in a saved map, on the grid package's maps);
 7. ``viz``: live views;
 8. ``app``: the command line, runs, outputs, plotting.
 
@@ -27,7 +28,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "jaxslam"
 
 LAYERS = {
     "core": 0, "models": 1, "runtime": 1, "datasets": 2, "metrics": 3, "base": 4, "feature": 5, "grid": 5,
-    "filters": 6, "calibrate": 6, "viz": 7, "app": 8,
+    "filters": 6, "calibrate": 6, "localization": 6, "viz": 7, "app": 8,
 }
 NEVER = {"feature": {"datasets", "metrics"}}
 

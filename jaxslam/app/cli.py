@@ -1,4 +1,4 @@
-"""The ``jaxslam`` command line: run, evaluate, datasets, plot.
+"""The ``jaxslam`` command line: run, localize, evaluate, datasets, plot.
 
 Bad arguments exit with status 2 and a message that says what is wrong; a missing
 dataset names the dataset, every place searched and how to set ``JAXSLAM_DATA``.
@@ -29,6 +29,7 @@ EPILOG = """examples:
   jaxslam datasets --inspect robot.bag            topics, types, counts and rates of a ROS bag
   jaxslam run --dataset robot.bag --scan-topic /scan --odom-topic /odom --out runs/robot
   jaxslam plot runs/intel
+  jaxslam localize --map runs/intel --dataset intel --global --particles 10000 --out runs/intel-loc
   jaxslam calibrate --dataset victoria-park --algorithm erb-upf --out runs/cal
   jaxslam run --dataset victoria-park --params runs/cal/calibration.json --out runs/vp-cal
 """
@@ -210,6 +211,10 @@ def build_parser() -> argparse.ArgumentParser:
     from jaxslam.app.calibrate import add_parser as add_calibrate_parser
 
     add_calibrate_parser(sub, _positive_int, _nonneg_int)
+
+    from jaxslam.app.localize import add_parser as add_localize_parser
+
+    add_localize_parser(sub, _positive_int, _nonneg_int)
 
     pl = sub.add_parser("plot", help="re-draw the figures of an output folder from its files")
     pl.add_argument("folder", type=Path, help="output folder written by `jaxslam run`")
@@ -394,7 +399,19 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
-COMMANDS = {"calibrate": cmd_calibrate, "run": cmd_run, "evaluate": cmd_evaluate, "datasets": cmd_datasets, "plot": cmd_plot}
+def cmd_localize(args) -> int:
+    from jaxslam.app.localize import run as run_localize
+    from jaxslam.runtime.cache import enable_compilation_cache
+
+    try:
+        enable_compilation_cache(None)
+    except OSError as err:
+        print(f"jaxslam localize: warning: running without the compilation cache: {err}", file=sys.stderr)
+    print(json.dumps(run_localize(args), indent=2))
+    return 0
+
+
+COMMANDS = {"calibrate": cmd_calibrate, "localize": cmd_localize, "run": cmd_run, "evaluate": cmd_evaluate, "datasets": cmd_datasets, "plot": cmd_plot}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,7 +5,8 @@
 * ``trajectory.tum`` — the estimate in the TUM format;
 * landmark runs: ``landmarks.csv`` (id, x, y, covariance);
 * grid runs: ``map.pgm`` + ``map.yaml`` (ROS map_server convention) and ``map.png``
-  (:func:`jaxslam.grid.export.save_map`);
+  (:func:`jaxslam.grid.export.save_map`), and ``map.npz``, the same map losslessly
+  (:func:`jaxslam.grid.mapfile.save_map_npz`, read back by :func:`jaxslam.grid.load_map`);
 * ``arrays.npz`` — the data the figures are drawn from, so that :func:`replot` (``jaxslam
   plot``) redraws every figure of the folder: ``trajectory.png`` (landmark runs) or
   ``map_trajectory.png`` and ``map.png`` (grid runs), and ``health.png``.
@@ -236,11 +237,15 @@ def grid_arrays(result, title: str) -> dict:
 
 def write_grid_outputs(out: Path, result, arrays: dict, comment: str) -> None:
     """``trajectory.tum`` (``comment``: its header comment), ``map.pgm``, ``map.yaml``,
-    ``map.png`` and ``arrays.npz`` (:func:`grid_arrays`) of a grid run."""
+    ``map.png``, ``map.npz`` and ``arrays.npz`` (:func:`grid_arrays`) of a grid run."""
     from jaxslam.grid.export import save_map
+    from jaxslam.grid.mapfile import save_map_npz
 
     write_trajectory(out, result.scan_times, result.trajectory, comment)
     save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
+    layout = getattr(getattr(result, "config", None), "layout", None)
+    save_map_npz(out / "map.npz", result.map_log_odds, result.resolution, result.origin,
+                 log_odds_unit=(result.params or {}).get("log_odds_unit"), tile=getattr(layout, "tile", None))
     write_npz(out / "arrays.npz", **arrays)
 
 

@@ -17,6 +17,8 @@ Modules:
 * :mod:`~jaxslam.grid.gmapping`, :mod:`~jaxslam.grid.srupf` — the filters
   (``init``/``step``/``run``).
 * :mod:`~jaxslam.grid.export` — PGM + YAML (ROS map_server) and PNG.
+* :mod:`~jaxslam.grid.mapfile` — the lossless ``map.npz`` and :func:`load_map` (it, a
+  run folder or any ROS map_server YAML).
 * :mod:`~jaxslam.grid.experiment` — :func:`run_grid_slam` on a CARMEN log.
 """
 
@@ -33,6 +35,7 @@ from jaxslam.grid.types import (
     default_params,
 )
 from jaxslam.grid.export import save_map
+from jaxslam.grid.mapfile import OccupancyMap, load_map
 from jaxslam.grid.map import GridSpec
 
 # The whole-run entry points read logs (jaxslam.datasets): loaded on first use, so that
@@ -56,6 +59,7 @@ __all__ = [
     "GridSlamParams",
     "GridSlamState",
     "GridSpec",
+    "OccupancyMap",
     "Odometry",
     "Scan",
     "best_particle",
@@ -68,6 +72,7 @@ __all__ = [
     "export",
     "gmapping",
     "init",
+    "load_map",
     "make_config",
     "map",
     "matching",

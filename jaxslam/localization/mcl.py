@@ -1,0 +1,458 @@
+r"""Monte Carlo localization in a known map: KLD-adaptive, augmented MCL.
+
+One :func:`mcl` filter, on the ``init``/``step`` protocol of the mapping filters:
+``step(key, state, control, observation) -> (State, Info)`` with the odometry
+increment ``(3,)`` as the control and a :class:`jaxslam.grid.types.Scan` as the
+observation. Per step (Thrun, Burgard & Fox, *Probabilistic Robotics*, Tables 8.2-8.4):
+
+1. **Motion.** Every particle draws ``x_t = x_{t-1} ⊕ (δ + n)`` from GMapping's
+   odometry model (:func:`jaxslam.models.odometry.sample_gmapping`, the mapping
+   filters' model, gains ``srr, srt, str, stt``).
+2. **Measurement**, once the odometry has moved ``update_min_d`` metres or
+   ``update_min_a`` radians since the last one (AMCL's rule; the first scan always):
+   the beam-endpoint likelihood field (:mod:`jaxslam.localization.field`) on up to
+   ``max_beams`` evenly spaced beams, :math:`\log w \mathrel{+}= \lambda \sum_k
+   \log p(z^k \mid x, m)` with a tempering power :math:`\lambda` (beams are not
+   independent, so the product of all of them is overconfident).
+3. **Augmented MCL.** With :math:`\bar w_t` the weighted mean likelihood per beam
+   (the geometric mean over the beams of :math:`\sum_m w^{[m]}_{t-1} p(z_t|x^{[m]}_t)`),
+   :math:`w_{slow} \mathrel{+}= \alpha_{slow}(\bar w_t - w_{slow})` and
+   :math:`w_{fast} \mathrel{+}= \alpha_{fast}(\bar w_t - w_{fast})`. When
+   :math:`p = 1 - w_{fast}/w_{slow}` exceeds ``inject_trigger`` the step resamples,
+   and each new particle is, with probability :math:`p`, a pose drawn uniformly over
+   the free cells (uniform heading) instead (Table 8.3; below the trigger nothing is
+   injected, so that the noise of the averages in tracking does not widen the cloud).
+4. **Resampling** (systematic, :func:`jaxslam.core.resampling.systematic`) when
+   the effective sample size falls below ``ess_threshold`` times the particles in
+   use, or to inject.
+5. **Adaptive particle number** (KLD sampling, Fox 2003). The filter holds a fixed
+   capacity of ``N`` particles, of which the first ``n_t`` are in use (the others
+   have weight zero). At a resampling, a capacity-size systematic draw from the
+   weights (in random order, with the injected poses in it, as AMCL counts its random
+   particles) is binned (``bin_xy`` x ``bin_xy`` metres x ``bin_theta`` radians, the
+   bins of AMCL's kd-tree); with ``k`` bins occupied the new particle number is
+   Fox's bound
+
+   .. math::
+       n = \frac{k-1}{2\epsilon}\left(1 - \frac{2}{9(k-1)} +
+           \sqrt{\frac{2}{9(k-1)}}\, z_{1-\delta}\right)^3,
+
+   clipped to ``[min_particles, N]``, and the first ``n`` of the draw are kept
+   (counting the bins of all ``N`` draws rather than of the first ``n`` errs on the
+   side of more particles). A compact cloud
+   (tracking) needs a few hundred, a cloud over a whole building (global
+   localization, a kidnapping) the full capacity. The measurement is evaluated on
+   the first ``N / 4^j`` particles for the smallest such tier that holds ``n_t``
+   (``lax.switch``), so tracking also costs less.
+6. **Estimate.** The weighted circular mean of the particles within 1.5 bins of the
+   heaviest bin (the mode, not the mean of a multi-modal cloud), with the mass it
+   holds (``cluster_weight``) and the weighted spread of the whole cloud.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.scipy.special import logsumexp
+
+from jaxslam.base import ParticleFilter
+from jaxslam.core import se2
+from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, systematic
+from jaxslam.grid.types import Scan
+from jaxslam.localization.field import LikelihoodField, beam_log_likelihood, distance_at
+from jaxslam.models.odometry import sample_gmapping
+
+
+@dataclasses.dataclass(frozen=True)
+class MclConfig:
+    """Static settings (they size arrays or choose branches; changing one recompiles).
+
+    Attributes:
+        capacity: particles held (``N``); the number in use adapts inside it.
+        num_beams: beams per scan of the log.
+        max_beams: beams used per measurement, evenly spaced over the scan (AMCL's
+            ``laser_max_beams``).
+        min_particles: the fewest particles in use after a resampling.
+        tiers: measurement sizes ``N, N/4, N/16, ...`` (at least ``min_particles``).
+    """
+
+    capacity: int = 5000
+    num_beams: int = 180
+    max_beams: int = 60
+    min_particles: int = 250
+    tiers: int = 4
+
+    def __post_init__(self):
+        if self.capacity < 1 or self.num_beams < 1 or self.max_beams < 1 or self.tiers < 1:
+            raise ValueError(f"capacity, num_beams, max_beams and tiers must be positive: {self}")
+        if not 1 <= self.min_particles <= self.capacity:
+            raise ValueError(f"min_particles must lie in [1, capacity], got {self.min_particles}")
+
+    @property
+    def beam_indices(self) -> np.ndarray:
+        """The beams used, evenly spaced over the scan."""
+        count = min(self.max_beams, self.num_beams)
+        return np.unique(np.round(np.linspace(0, self.num_beams - 1, count)).astype(np.int64))
+
+    @property
+    def tier_sizes(self) -> tuple[int, ...]:
+        """Ascending particle counts the measurement is compiled for."""
+        sizes = {self.capacity}
+        for j in range(1, self.tiers):
+            size = self.capacity // 4**j
+            if size >= self.min_particles:
+                sizes.add(size)
+        return tuple(sorted(sizes))
+
+
+class MclParams(NamedTuple):
+    """Traced parameters: the map, the sensor geometry and every noise level and rate.
+
+    Defaults (:func:`default_params`) follow AMCL's recommended settings where it has
+    them (``z_hit``, ``z_rand``, ``sigma_hit``, update thresholds, ``alpha_slow``,
+    ``alpha_fast``, bin sizes) and GMapping's motion gains.
+    """
+
+    field: LikelihoodField
+    free_cells: Array  # (F, 2) world centres of free cells
+    beam_angles: Array  # (num_beams,) rad in the laser frame
+    laser_offset: Array  # (3,) laser pose in the robot frame
+    max_range: Array
+    srr: Array
+    srt: Array
+    str_: Array
+    stt: Array
+    sigma_hit: Array
+    z_hit: Array
+    z_rand: Array
+    likelihood_power: Array
+    tempering_ess: Array
+    ess_threshold: Array
+    kld_epsilon: Array
+    kld_z: Array
+    alpha_slow: Array
+    alpha_fast: Array
+    inject_trigger: Array
+    update_min_d: Array
+    update_min_a: Array
+    bin_xy: Array
+    bin_theta: Array
+
+
+DEFAULTS = dict(
+    srr=0.1, srt=0.2, str_=0.1, stt=0.2, sigma_hit=0.2, z_hit=0.95, z_rand=0.05, likelihood_power=1.0,
+    tempering_ess=0.3,
+    ess_threshold=0.5, kld_epsilon=0.02, kld_z=2.326, alpha_slow=0.001, alpha_fast=0.1, inject_trigger=0.7,
+    update_min_d=0.2, update_min_a=math.pi / 6, bin_xy=0.5, bin_theta=math.radians(10.0),
+)
+"""Default noise levels, rates and thresholds (``kld_z``: the 0.99 quantile of N(0, 1))."""
+
+
+def default_params(field: LikelihoodField, free_cells, beam_angles, max_range: float,
+                   laser_offset=(0.0, 0.0, 0.0), **overrides) -> MclParams:
+    """:class:`MclParams` with :data:`DEFAULTS`, any of them overridden by name."""
+    unknown = set(overrides) - set(DEFAULTS)
+    if unknown:
+        raise ValueError(f"unknown MCL parameter(s) {sorted(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
+    dtype = field.distance.dtype
+    values = {**DEFAULTS, **overrides}
+    return MclParams(
+        field=field, free_cells=jnp.asarray(free_cells, dtype), beam_angles=jnp.asarray(beam_angles, dtype),
+        laser_offset=jnp.asarray(laser_offset, dtype), max_range=jnp.asarray(max_range, dtype),
+        **{name: jnp.asarray(value, dtype) for name, value in values.items()},
+    )
+
+
+class MclState(NamedTuple):
+    """Particles (the first ``num_active`` in use), log-weights and the MCL averages.
+
+    Attributes:
+        poses: ``(N, 3)``.
+        log_weights: ``(N,)`` normalised; ``-inf`` for particles not in use.
+        num_active: ``()`` int32, particles in use (slots ``0 .. n-1``).
+        w_slow, w_fast: ``()`` long- and short-term mean likelihood per beam (0: unset).
+        travel: ``(2,)`` odometry distance and rotation since the last measurement.
+    """
+
+    poses: Array
+    log_weights: Array
+    num_active: Array
+    w_slow: Array
+    w_fast: Array
+    travel: Array
+
+
+class MclInfo(NamedTuple):
+    """What a step did. ``ess``, ``resampled``, ``ancestors`` and
+    ``log_likelihood_increment`` as every filter's ``Info``: ``ess`` before
+    resampling (unused slots weigh 0); ``ancestors`` ``(N,)`` the slot each particle
+    was drawn from, -1 for a free-space draw (injected) and the identity without a
+    resampling; ``log_likelihood_increment`` of the tempered likelihood (0 for a scan
+    not used)."""
+
+    ess: Array
+    resampled: Array
+    ancestors: Array
+    log_likelihood_increment: Array
+    particles: Array  # () particles in use after the step
+    injected: Array  # () particles replaced by free-space draws
+    updated: Array  # () whether the scan was used
+    estimate: Array  # (3,)
+    cluster_weight: Array  # () weight within the estimate's bins
+    spread: Array  # () weighted xy standard deviation of the cloud (m)
+    occupied_bins: Array  # () KLD bins of the resampling draw (0 without one)
+    w_slow: Array
+    w_fast: Array
+
+
+def kld_bound(bins: Array, epsilon, z) -> Array:
+    """Fox's KLD-sampling particle number for ``bins`` occupied bins (float)."""
+    k = jnp.maximum(bins.astype(jnp.result_type(float)) - 1.0, 1.0)
+    b = 2.0 / (9.0 * k)
+    n = k / (2.0 * epsilon) * (1.0 - b + jnp.sqrt(b) * z) ** 3
+    return jnp.where(bins > 1, n, 1.0)
+
+
+def pose_bins(poses: Array, bin_xy, bin_theta) -> Array:
+    """``(N, 3)`` int32 bin coordinates of poses."""
+    ix = jnp.floor(poses[:, 0] / bin_xy)
+    iy = jnp.floor(poses[:, 1] / bin_xy)
+    it = jnp.floor((se2.wrap_angle(poses[:, 2]) + math.pi) / bin_theta)
+    return jnp.stack([ix, iy, it], -1).astype(jnp.int32)
+
+
+def _sorted_bins(bins: Array, mask: Array):
+    """Order putting the masked-in bins first, sorted; the flag of each first of a bin."""
+    order = jnp.lexsort((bins[:, 2], bins[:, 1], bins[:, 0], ~mask))
+    sorted_bins, sorted_mask = bins[order], mask[order]
+    changed = jnp.any(sorted_bins[1:] != sorted_bins[:-1], axis=-1) | (sorted_mask[1:] != sorted_mask[:-1])
+    first = jnp.concatenate([jnp.ones((1,), bool), changed])
+    return order, first, sorted_mask
+
+
+def count_bins(bins: Array, mask: Array) -> Array:
+    """Distinct bins among the rows of ``bins`` where ``mask``."""
+    _, first, sorted_mask = _sorted_bins(bins, mask)
+    return jnp.sum(first & sorted_mask).astype(jnp.int32)
+
+
+def mode_estimate(poses: Array, log_weights: Array, bin_xy, bin_theta) -> tuple[Array, Array, Array]:
+    """``(estimate (3,), cluster_weight, spread)``: the weighted circular mean within 1.5
+    bins of the heaviest bin, its weight, and the cloud's weighted xy spread."""
+    weights = jnp.exp(normalize_log_weights(log_weights))
+    bins = pose_bins(poses, bin_xy, bin_theta)
+    order, first, sorted_mask = _sorted_bins(bins, weights > 0)
+    segment = jnp.cumsum(first) - 1
+    mass = jax.ops.segment_sum(weights[order], segment, num_segments=poses.shape[0])
+    best = jnp.argmax(mass)
+    anchor = bins[order][jnp.argmax(segment == best)].astype(poses.dtype)
+    centre_xy = (anchor[:2] + 0.5) * bin_xy
+    centre_t = (anchor[2] + 0.5) * bin_theta - math.pi
+    near = (jnp.all(jnp.abs(poses[:, :2] - centre_xy) <= 1.5 * bin_xy, -1)
+            & (jnp.abs(se2.wrap_angle(poses[:, 2] - centre_t)) <= 1.5 * bin_theta))
+    local = jnp.where(near, weights, 0.0)
+    cluster_weight = jnp.sum(local)
+    estimate = se2.pose_mean(poses, local / jnp.maximum(cluster_weight, jnp.finfo(poses.dtype).tiny))
+    mean_xy = jnp.sum(weights[:, None] * poses[:, :2], 0)
+    spread = jnp.sqrt(jnp.sum(weights * jnp.sum(jnp.square(poses[:, :2] - mean_xy), -1)))
+    return estimate, cluster_weight, spread
+
+
+def tempering_power(log_weights: Array, loglik: Array, max_power, min_ess, iterations: int = 20) -> Array:
+    """The largest power ``lam <= max_power`` with ``ESS(log_weights + lam loglik) >= min_ess``.
+
+    Adaptive tempering (Jasra et al. 2011): the ESS falls as the power grows, so a
+    bisection on ``log lam`` over ``[max_power 1e-6, max_power]`` finds it; where even
+    the smallest power leaves fewer effective particles, that smallest power.
+    """
+    dtype = loglik.dtype
+    finite = jnp.isfinite(log_weights)
+    lik = jnp.where(finite, loglik, 0.0)
+
+    def ess(lam):
+        return effective_sample_size(jnp.where(finite, log_weights + lam * lik, -jnp.inf))
+
+    top = jnp.asarray(max_power, dtype)
+    lo0, hi0 = jnp.log(top) + jnp.log(jnp.asarray(1e-6, dtype)), jnp.log(top)
+
+    def bisect(_, bounds):
+        lo, hi = bounds
+        mid = 0.5 * (lo + hi)
+        enough = ess(jnp.exp(mid)) >= min_ess
+        return jnp.where(enough, mid, lo), jnp.where(enough, hi, mid)
+
+    lo, _ = jax.lax.fori_loop(0, iterations, bisect, (lo0, hi0))
+    return jnp.where(ess(top) >= min_ess, top, jnp.exp(lo))
+
+
+def sample_free_poses(key: Array, free_cells: Array, resolution, yaw, num: int) -> Array:
+    """``(num, 3)`` poses uniform over the free cells (uniform in each cell, any heading)."""
+    k_cell, k_offset, k_heading = jax.random.split(key, 3)
+    dtype = free_cells.dtype
+    cells = free_cells[jax.random.randint(k_cell, (num,), 0, free_cells.shape[0])]
+    offset = (jax.random.uniform(k_offset, (num, 2), dtype) - 0.5) * resolution
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    xy = cells + jnp.stack([c * offset[:, 0] - s * offset[:, 1], s * offset[:, 0] + c * offset[:, 1]], -1)
+    heading = jax.random.uniform(k_heading, (num,), dtype, -math.pi, math.pi)
+    return jnp.concatenate([xy, heading[:, None]], -1)
+
+
+def scan_log_likelihood(params: MclParams, pose: Array, ranges: Array, use: Array, angles: Array) -> Array:
+    """``sum_k log p(z^k | x, m)`` over the used beams of one particle (untempered)."""
+    laser = se2.compose(pose, params.laser_offset)
+    heading = laser[2] + angles
+    r = jnp.where(use, ranges, 0.0)
+    ends = laser[:2] + r[:, None] * jnp.stack([jnp.cos(heading), jnp.sin(heading)], -1)
+    per_beam = beam_log_likelihood(distance_at(params.field, ends), params.sigma_hit, params.z_hit,
+                                   params.z_rand, params.max_range)
+    return jnp.sum(jnp.where(use, per_beam, 0.0))
+
+
+def mcl(config: MclConfig, params: MclParams) -> ParticleFilter:
+    """Augmented, KLD-adaptive Monte Carlo localization in ``params.field``'s map.
+
+    Args:
+        config: static sizes (:class:`MclConfig`).
+        params: the map's field, free cells, sensor geometry and noise levels
+            (:func:`default_params`).
+
+    Returns:
+        ``ParticleFilter(init, step)``: ``init(key, pose=None, pose_std=None)`` draws
+        the full capacity uniformly over free space when ``pose`` is None (global
+        localization), else around ``pose`` with standard deviations ``pose_std``
+        ``(3,)``; ``step(key, state, increment (3,), scan)`` as in the module docstring.
+    """
+    capacity = config.capacity
+    beams = jnp.asarray(config.beam_indices)
+    tiers = config.tier_sizes
+    dtype = params.field.distance.dtype
+    slots = jnp.arange(capacity)
+
+    def init(key: Array, pose: Array | None = None, pose_std: Array | None = None) -> MclState:
+        if pose is None:
+            poses = sample_free_poses(key, params.free_cells, params.field.resolution, params.field.origin[2], capacity)
+        else:
+            pose = jnp.asarray(pose, dtype)
+            std = jnp.asarray(pose_std if pose_std is not None else (0.1, 0.1, 0.05), dtype)
+            chex.assert_shape([pose, std], (3,))
+            poses = pose + jax.random.normal(key, (capacity, 3), dtype) * std
+            poses = poses.at[:, 2].set(se2.wrap_angle(poses[:, 2]))
+        zero = jnp.zeros((), dtype)
+        return MclState(
+            poses=poses, log_weights=jnp.full((capacity,), -jnp.log(jnp.asarray(capacity, dtype))),
+            num_active=jnp.asarray(capacity, jnp.int32), w_slow=zero, w_fast=zero,
+            travel=jnp.full((2,), jnp.inf, dtype),
+        )
+
+    def measure(poses: Array, scan: Scan) -> tuple[Array, Array]:
+        ranges = scan.ranges[beams].astype(dtype)
+        use = scan.valid[beams] & jnp.isfinite(ranges) & (ranges > 0) & (ranges < params.max_range)
+        angles = params.beam_angles[beams] + jnp.asarray(scan.angle_offset, dtype)
+
+        def tier(size):
+            def evaluate(all_poses):
+                part = jax.vmap(scan_log_likelihood, (None, 0, None, None, None))(
+                    params, all_poses[:size], ranges, use, angles)
+                return jnp.concatenate([part, jnp.zeros((capacity - size,), dtype)])
+            return evaluate
+
+        return use, (tiers, [tier(size) for size in tiers])
+
+    def step(key: Array, state: MclState, control: Array, observation: Scan) -> tuple[MclState, MclInfo]:
+        chex.assert_shape(control, (3,))
+        chex.assert_shape(state.poses, (capacity, 3))
+        k_motion, k_kld, k_draw, k_coin, k_free = jax.random.split(key, 5)
+        increment = jnp.asarray(control, dtype)
+        motion_keys = jax.random.split(k_motion, capacity)
+        poses = jax.vmap(sample_gmapping, (0, 0, None, None, None, None, None))(
+            motion_keys, state.poses, increment, params.srr, params.srt, params.str_, params.stt)
+        travel = state.travel + jnp.stack([jnp.hypot(increment[0], increment[1]), jnp.abs(increment[2])])
+        use, (sizes, branches) = measure(poses, observation)
+        used_beams = jnp.sum(use)
+        updated = ((travel[0] >= params.update_min_d) | (travel[1] >= params.update_min_a)) & (used_beams > 0)
+        active = slots < state.num_active
+        tier_index = jnp.searchsorted(jnp.asarray(sizes), state.num_active)
+
+        def likelihood(p):
+            return jax.lax.switch(jnp.minimum(tier_index, len(sizes) - 1), branches, p)
+
+        loglik = jax.lax.cond(updated, likelihood, lambda p: jnp.zeros((capacity,), dtype), poses)
+        loglik = jnp.where(active & jnp.isfinite(loglik), loglik, jnp.where(active, -jnp.inf, 0.0))
+        prior = state.log_weights
+        power = tempering_power(prior, loglik, params.likelihood_power, params.tempering_ess * state.num_active)
+        power = jnp.where(updated, power, 0.0)
+        tempered = prior + power * loglik
+        increment_ll = jnp.where(updated, logsumexp(tempered), 0.0)
+        mean_beam = jnp.where(updated, logsumexp(prior + loglik) / jnp.maximum(used_beams, 1), 0.0)
+        w_avg = jnp.exp(mean_beam)
+        w_slow = jnp.where(state.w_slow > 0, state.w_slow + params.alpha_slow * (w_avg - state.w_slow), w_avg)
+        w_fast = jnp.where(state.w_fast > 0, state.w_fast + params.alpha_fast * (w_avg - state.w_fast), w_avg)
+        w_slow = jnp.where(updated, w_slow, state.w_slow)
+        w_fast = jnp.where(updated, w_fast, state.w_fast)
+        log_weights = jnp.where(updated, normalize_log_weights(jnp.where(active, tempered, -jnp.inf)), prior)
+        ess = effective_sample_size(log_weights)
+        inject_p = jnp.where(updated & (w_slow > 0), jnp.maximum(0.0, 1.0 - w_fast / jnp.maximum(w_slow, 1e-30)), 0.0)
+        inject_p = jnp.where(inject_p > params.inject_trigger, inject_p, 0.0)
+        n = state.num_active.astype(dtype)
+        resampled = updated & ((ess < params.ess_threshold * n) | (inject_p > 0))
+        estimate, cluster_weight, spread = mode_estimate(poses, log_weights, params.bin_xy, params.bin_theta)
+
+        def resample(_):
+            # a capacity-size draw from the weights (shuffled: any prefix is a fair
+            # sample), each draw replaced by a free-space pose with probability p
+            draw = systematic(k_draw, log_weights)[jax.random.permutation(k_kld, capacity)]
+            inject = jax.random.uniform(k_coin, (capacity,), dtype) < inject_p
+            fresh = sample_free_poses(k_free, params.free_cells, params.field.resolution, params.field.origin[2],
+                                      capacity)
+            mixed = jnp.where(inject[:, None], fresh, poses[draw])
+            # KLD: the bins the draw occupies size the new cloud (its first new_n)
+            bins = count_bins(pose_bins(mixed, params.bin_xy, params.bin_theta), jnp.ones((capacity,), bool))
+            target = kld_bound(bins, params.kld_epsilon, params.kld_z)
+            new_n = jnp.clip(jnp.ceil(target), config.min_particles, capacity).astype(jnp.int32)
+            in_use = slots < new_n
+            return (mixed, jnp.where(in_use, -jnp.log(new_n.astype(dtype)), -jnp.inf).astype(dtype), new_n,
+                    jnp.where(inject, -1, draw).astype(jnp.int32), jnp.sum(inject & in_use).astype(jnp.int32), bins)
+
+        def keep(_):
+            return (poses, log_weights, state.num_active, slots.astype(jnp.int32), jnp.zeros((), jnp.int32),
+                    jnp.zeros((), jnp.int32))
+
+        new_poses, new_log_weights, new_n, ancestors, injected, bins = jax.lax.cond(resampled, resample, keep, None)
+        new_state = MclState(
+            poses=new_poses, log_weights=new_log_weights, num_active=new_n,
+            w_slow=w_slow.astype(dtype), w_fast=w_fast.astype(dtype),
+            travel=jnp.where(updated, jnp.zeros((2,), dtype), travel),
+        )
+        info = MclInfo(
+            ess=ess, resampled=resampled, ancestors=ancestors,
+            log_likelihood_increment=increment_ll, particles=new_state.num_active, injected=injected,
+            updated=updated, estimate=estimate, cluster_weight=cluster_weight, spread=spread,
+            occupied_bins=bins, w_slow=w_slow, w_fast=w_fast,
+        )
+        return new_state, info
+
+    return ParticleFilter(init, step)
+
+
+__all__ = [
+    "DEFAULTS",
+    "MclConfig",
+    "MclInfo",
+    "MclParams",
+    "MclState",
+    "count_bins",
+    "default_params",
+    "kld_bound",
+    "mcl",
+    "mode_estimate",
+    "pose_bins",
+    "sample_free_poses",
+    "scan_log_likelihood",
+]

@@ -1,0 +1,91 @@
+"""``jaxslam localize``: outputs on a simulated log, one-line errors for bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxslam.app.cli import main
+from jaxslam.datasets.laser_sim import simulate
+from jaxslam.grid.export import save_map
+from jaxslam.grid.mapfile import save_map_npz, segment_map
+
+
+@pytest.fixture(scope="module")
+def sim_map(tmp_path_factory):
+    """The map of the built-in laser world (`--dataset sim-laser`, seed 0), as a run folder."""
+    folder = tmp_path_factory.mktemp("map")
+    log = simulate(seed=0)
+    grid = segment_map(log.walls, (0.0, 0.0, 16.0, 10.0), 0.05)
+    log_odds = np.select([grid.occupied, grid.free], [3.0, -3.0], 0.0).astype(np.float32)
+    save_map(folder, log_odds, grid.resolution, grid.origin[:2])
+    save_map_npz(folder / "map.npz", log_odds, grid.resolution, grid.origin)
+    return folder, log
+
+
+def test_localize_writes_trajectory_summary_and_figure(sim_map, tmp_path, capsys):
+    folder, log = sim_map
+    out = tmp_path / "loc"
+    pose = [str(v) for v in log.true_poses[0]]
+    assert main(["localize", "--map", str(folder / "map.yaml"), "--dataset", "sim-laser", "--initial-pose", *pose,
+                 "--particles", "1000", "--max-steps", "120", "--chunk", "60", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())  # strict JSON
+    assert summary["scans"] == 120 and summary["converged"] and not summary["global_start"]
+    rows = np.loadtxt(out / "trajectory.tum")
+    assert rows.shape == (120, 8) and np.all(np.isfinite(rows))
+    assert np.hypot(*(rows[:, 1:3] - log.true_poses[:120, :2]).T).mean() < 0.1
+    assert (out / "localization.png").stat().st_size > 10_000
+    assert json.loads(capsys.readouterr().out)["scans"] == 120
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--global", "--initial-pose", "1", "1", "0"], "exclude each other"),
+        (["--initial-std", "1", "1", "1"], "--initial-std needs --initial-pose"),
+        (["--initial-pose", "100", "100", "0"], "lies outside the map"),
+        (["--initial-pose", "1", "1", "0", "--initial-std", "0", "1", "1"], "must be positive"),
+        (["--set", "sigma_hit"], "expected NAME=VALUE"),
+        (["--set", "no_such=1"], "no such parameter"),
+        (["--set", "sigma_hit=fast"], "must be a number"),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line(sim_map, tmp_path, capsys, args, message):
+    folder, _ = sim_map
+    with pytest.raises(SystemExit) as code:
+        main(["localize", "--map", str(folder), "--dataset", "sim-laser", "--out", str(tmp_path / "o"), *args])
+    assert code.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and err.count("\n") == 0 and "Traceback" not in err
+
+
+def test_bad_maps_exit_2_naming_the_file(tmp_path, capsys):
+    (tmp_path / "m.yaml").write_text("image: gone.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\n"
+                                     "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    for target, message in [(tmp_path / "m.yaml", "does not exist"), (tmp_path / "none", "does not exist")]:
+        with pytest.raises(SystemExit) as code:
+            main(["localize", "--map", str(target), "--dataset", "sim-laser", "--out", str(tmp_path / "o")])
+        assert code.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and str(target) in err and err.count("\n") == 0
+    (tmp_path / "z.yaml").write_text("image: m.pgm\nresolution: 0\norigin: [0, 0, 0]\n"
+                                     "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    with pytest.raises(SystemExit) as code:
+        main(["localize", "--map", str(tmp_path / "z.yaml"), "--dataset", "sim-laser", "--out", str(tmp_path / "o")])
+    assert code.value.code == 2 and "line 2: resolution must be a positive" in capsys.readouterr().err
+
+
+def test_a_grid_run_writes_a_map_that_reads_back(tmp_path):
+    from jaxslam.grid.mapfile import load_map
+
+    out = tmp_path / "run"
+    assert main(["run", "--out", str(out), "--algorithm", "srupf-gm", "--particles", "2", "--max-steps", "6",
+                 "--no-progress", "--no-plots"]) == 0
+    saved = load_map(out, require_free=False)  # six scans: nothing is free enough yet
+    assert saved.source.name == "map.npz" and saved.cells is not None and saved.tile is not None
+    arrays = np.load(out / "arrays.npz")
+    np.testing.assert_array_equal(saved.log_odds, arrays["log_odds"])
+    assert saved.origin[:2] == tuple(arrays["origin"])
+    np.testing.assert_array_equal(load_map(out / "map.yaml", require_free=False).occupancy, saved.occupancy)

@@ -1,0 +1,122 @@
+"""Monte Carlo localization: its parts against references, and runs on simulated worlds."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxslam.core.resampling import effective_sample_size
+from jaxslam.grid.mapfile import segment_map
+from jaxslam.localization.experiment import localize, summary, tracking_errors
+from jaxslam.localization.mcl import count_bins, kld_bound, mode_estimate, pose_bins, tempering_power
+from tests.localization.worlds import BOUNDS, crate_world, kidnapped_poses, laser_log, ring_poses
+
+CHUNK = 128
+
+
+def test_kld_bound_is_foxs_formula():
+    for k in (2, 5, 40, 1000):
+        z, eps = 2.326, 0.02
+        expected = (k - 1) / (2 * eps) * (1 - 2 / (9 * (k - 1)) + math.sqrt(2 / (9 * (k - 1))) * z) ** 3
+        assert float(kld_bound(jnp.asarray(k), eps, z)) == pytest.approx(expected, rel=1e-5)
+    assert float(kld_bound(jnp.asarray(1), 0.02, 2.326)) == 1.0
+
+
+_count_bins = jax.jit(count_bins)
+_pose_bins = jax.jit(pose_bins)
+_tempering_power = jax.jit(tempering_power)
+_ess = jax.jit(effective_sample_size)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.05, 3.0), st.floats(0.0, 1.0))
+def test_count_bins_counts_distinct_bins(seed, extent, keep):
+    rng = np.random.default_rng(seed)
+    poses = rng.uniform([-extent, -extent, -np.pi], [extent, extent, np.pi], (128, 3)).astype(np.float32)
+    mask = rng.random(128) < keep
+    bins = np.asarray(_pose_bins(jnp.asarray(poses), 0.5, math.radians(10)))
+    expected = len({tuple(b) for b in bins[mask]})
+    assert int(_count_bins(jnp.asarray(bins), jnp.asarray(mask))) == expected
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.05, 0.9))
+def test_tempering_power_keeps_the_ess_and_is_the_largest(seed, fraction):
+    rng = np.random.default_rng(seed)
+    n = 64
+    log_w = jnp.asarray(np.log(rng.dirichlet(np.ones(n))), jnp.float32)
+    loglik = jnp.asarray(rng.normal(0, 30, n), jnp.float32)
+    lam = float(_tempering_power(log_w, loglik, 1.0, fraction * n))
+    ess = float(_ess(log_w + lam * loglik))
+    if lam < 1.0 and lam > 1e-6 * 1.01:
+        assert ess >= fraction * n * (1 - 1e-3)
+        assert float(_ess(log_w + min(1.0, lam * 1.01) * loglik)) < fraction * n * (1 + 1e-3)
+    elif lam == 1.0:
+        assert ess >= fraction * n * (1 - 1e-4)
+
+
+def test_mode_estimate_takes_the_heavier_mode_not_the_mean():
+    rng = np.random.default_rng(0)
+    a = np.c_[rng.normal(1.0, 0.05, (60, 2)), rng.normal(3.1, 0.02, 60)]  # near the +-pi wrap
+    b = np.c_[rng.normal(-4.0, 0.05, (40, 2)), rng.normal(0.0, 0.02, 40)]
+    poses = jnp.asarray(np.concatenate([a, b]), jnp.float32)
+    estimate, weight, spread = jax.jit(mode_estimate)(poses, jnp.zeros(100), 0.5, math.radians(10))
+    np.testing.assert_allclose(np.asarray(estimate)[:2], a[:, :2].mean(0), atol=0.03)
+    assert abs(np.angle(np.exp(1j * (float(estimate[2]) - 3.1)))) < 0.02
+    assert float(weight) == pytest.approx(0.6, abs=0.02) and float(spread) > 3.0
+
+
+@pytest.fixture(scope="module")
+def world():
+    walls = crate_world()
+    return walls, segment_map(walls, BOUNDS, 0.05)
+
+
+def _first_good(trajectory, truth, metres=0.5, degrees=10.0):
+    distance, heading = tracking_errors(trajectory, truth)
+    bad = np.flatnonzero((distance >= metres) | (heading >= math.radians(degrees)))
+    return 0 if bad.size == 0 else int(bad[-1]) + 1
+
+
+def test_tracks_from_a_known_start(world):
+    walls, grid = world
+    log = laser_log(walls, ring_poses()[:2 * CHUNK], seed=3)
+    result = localize(log, grid, particles=2000, seed=0, initial_pose=log.true_poses[0], chunk=CHUNK)
+    distance, heading = tracking_errors(result.trajectory, log.true_poses)
+    assert distance.mean() < 0.05 and distance.max() < 0.15
+    assert np.degrees(heading).mean() < 1.0
+    info = result.info
+    assert info["particles"].max() <= 2000 and info["particles"][-1] < 1000  # the cloud shrank (KLD)
+    record = summary(result)
+    assert record["converged"] and record["injections"] == 0
+
+
+def test_converges_from_a_uniform_start(world):
+    walls, grid = world
+    log = laser_log(walls, ring_poses()[:CHUNK], seed=0)
+    result = localize(log, grid, particles=40000, seed=0, chunk=CHUNK)
+    start = _first_good(result.trajectory, log.true_poses)
+    assert start < 60  # within 12 s of log time, and then it stays
+    assert result.info["particles"][0] == 40000 and result.info["particles"][-1] < 5000
+    assert summary(result)["converged"]
+
+
+@pytest.mark.long
+def test_recovers_from_a_kidnapping(world):
+    walls, grid = world
+    at = 150
+    poses = kidnapped_poses(at, 200)[:3 * CHUNK]
+    log = laser_log(walls, poses, seed=1, jump_at=at)
+    result = localize(log, grid, particles=10000, seed=1, initial_pose=poses[0], chunk=CHUNK)
+    distance, _ = tracking_errors(result.trajectory, poses)
+    assert distance[:at].max() < 0.2
+    assert distance[at] > 3.0  # carried away
+    recovered = _first_good(result.trajectory, poses)
+    assert at < recovered < at + 150  # within 30 s of log time
+    assert result.info["injected"][at:].sum() > 0
