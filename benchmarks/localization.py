@@ -35,7 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _common import RESULTS, print_table, write_json  # noqa: E402
 
-from jaxslam.datasets.carmen import load_carmen, load_dataset_log  # noqa: E402
+from jaxslam.datasets.carmen import load_carmen  # noqa: E402
+from jaxslam.datasets.registry import load_dataset_log  # noqa: E402
 from jaxslam.datasets.perturb import CORRECTED_LOGS, make_perturbed_log  # noqa: E402
 from jaxslam.grid.known_poses import known_pose_log_odds, known_pose_map  # noqa: E402
 from jaxslam.localization.experiment import localize, tracking_errors  # noqa: E402

@@ -131,7 +131,7 @@ def test_report_of_relations_and_gps_scores_names_how_many_were_scored(tmp_path)
 
 
 def test_evaluate_says_how_many_relations_it_scored_and_warns_below_the_fraction(tmp_path, capsys):
-    from jaxslam.datasets.carmen import load_dataset_log
+    from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.metrics.scoring import MIN_MATCHED_FRACTION
     from jaxslam.metrics.trajectory_io import write_tum
 

@@ -407,7 +407,13 @@ def cmd_localize(args) -> int:
         enable_compilation_cache(None)
     except OSError as err:
         print(f"jaxslam localize: warning: running without the compilation cache: {err}", file=sys.stderr)
-    print(json.dumps(run_localize(args), indent=2))
+    summary = run_localize(args)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        from jaxslam.app.localize import report
+
+        print(report(summary, args.out))
     return 0
 
 

@@ -29,7 +29,6 @@ def add_parser(sub, positive_int, nonneg_int) -> None:
     loc = sub.add_parser(
         "localize",
         help="localize a laser log in a saved map (Monte Carlo localization: KLD-adaptive, augmented MCL)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     loc.add_argument("--map", type=Path, required=True, metavar="DIR|MAP.yaml|MAP.npz",
                      help="a `jaxslam run` output folder, its map.npz, or a ROS map_server YAML file")
@@ -54,12 +53,37 @@ def add_parser(sub, positive_int, nonneg_int) -> None:
     loc.add_argument("--max-range", type=float, default=None, metavar="M",
                      help="CARMEN logs: range limit in m (as for `jaxslam run`)")
     loc.add_argument("--no-plots", action="store_true", help="skip localization.png")
+    loc.add_argument("--json", action="store_true",
+                     help="print summary.json instead of the short report at the end")
     bag = loc.add_argument_group("ROS bags")
     bag.add_argument("--scan-topic", default=None, help="sensor_msgs/LaserScan topic; default: the only one")
     bag.add_argument("--odom-topic", default=None, help="nav_msgs/Odometry topic, or /tf")
     bag.add_argument("--base-frame", default=None, help="robot base frame")
     bag.add_argument("--laser-mount", type=float, nargs=3, default=None, metavar=("X", "Y", "THETA"),
                      help="laser pose in the base frame (m, m, rad); default: from /tf_static")
+
+
+def report(summary: dict, out: Path) -> str:
+    """A few lines for the terminal after a localization run: how it converged, the
+    particles and times, and where the files are (``summary.json`` has everything)."""
+    start = "a uniform start over free space" if summary["global_start"] else "the given initial pose"
+    if summary["converged"]:
+        converged = (f"converged at scan {summary['converged_scan']} "
+                     f"({summary['converged_after_s']:.1f} s of log time), compact cloud in "
+                     f"{summary['compact_fraction']:.0%} of the measurements after it")
+    else:
+        converged = "did not converge (the cloud never stayed compact)"
+    rate = summary["scans_per_s"]
+    lines = [
+        f"localization of {summary['scans']} scans from {start}",
+        f"  estimate         {converged}; final spread {summary['final_spread_m']:.2f} m",
+        f"  particles        {summary['particles_mean']:.0f} in use on average (capacity {summary['capacity']}), "
+        f"{summary['resamplings']} resamplings, {summary['injections']} injections",
+        f"  time             compilation {summary['compile_s']:.1f} s, filter loop {summary['wall_s']:.1f} s"
+        + (f" ({rate:.0f} scans/s)" if rate else ""),
+        f"  files            {out}: " + ", ".join(sorted(p.name for p in out.iterdir() if p.is_file())),
+    ]
+    return "\n".join(lines)
 
 
 def _param_names() -> list[str]:
