@@ -235,10 +235,43 @@ def headline_table() -> str:
     return _table(["", "jaxslam `srupf-gm`", "GMapping C++", "reproduce"], rows)
 
 
+LOCALIZATION_LOGS = {"intel": "Intel", "fr079": "FR079"}
+
+
+def _localization_files() -> list[dict]:
+    return [load("localization.json"), load("localization_fr079.json")]
+
+
+def localization_tracking_table() -> str:
+    """Tracking from the known start pose in a map built from the corrected poses."""
+    rows = []
+    for data in _localization_files():
+        for r in data["tracking"]:
+            rows.append([LOCALIZATION_LOGS.get(r["log"], r["log"]), str(r["seed"]), f"{r['mean_m']:.3f} m",
+                         f"{r['max_m']:.2f} m", f"{r['mean_deg']:.2f} deg", str(r["over_0_5m"]),
+                         f"{r['particles_mean']:.0f} of {data['tracking_particles']}", f"{r['scans_per_s']:.0f}"])
+    return _table(["log", "seed", "mean error", "largest error", "mean heading error", "scans over 0.5 m",
+                   "particles in use", "scans/s"], rows)
+
+
+def localization_global_table() -> str:
+    """Global localization from a uniform start over the map's free space."""
+    rows = []
+    for data in _localization_files():
+        for r in data["global"]:
+            rows.append([LOCALIZATION_LOGS.get(r["log"], r["log"]), f"{r['particles']:,}", str(r["seed"]),
+                         "yes" if r["success"] else "no",
+                         "" if r["converged_scan"] is None else str(r["converged_scan"]), str(r["scans"]),
+                         f"{r['wall_s']:.1f} s", f"{r['scans_per_s']:.0f}"])
+    return _table(["log", "capacity", "seed", "converged and stayed", "from scan", "scans", "filter loop",
+                   "scans/s"], rows)
+
+
 TABLES = {
     "robustness": robustness_table, "speed": speed_table, "landmark": landmark_table, "scale": scale_table,
     "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
     "compile_cost": compile_cost_table, "path_agreement": path_agreement_table,
+    "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
     "coarse_stage": lambda: comparison_table("robustness_coarse_stage.json", "robustness_no_coarse_stage.json",
                                              "with the coarse stage", "without"),
     "recovery": lambda: comparison_table("robustness_recovery.json", "robustness_no_recovery.json",
@@ -247,7 +280,8 @@ TABLES = {
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
-            "path_agreement": "path_agreement_csail.json", "coarse_stage": "robustness_coarse_stage.json",
+            "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
+            "localization_global": "localization.json", "coarse_stage": "robustness_coarse_stage.json",
             "recovery": "robustness_recovery.json"}
 
 
