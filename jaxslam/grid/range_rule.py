@@ -33,7 +33,7 @@ Sena, the Freiburg clinic, MRPT's UAL, the campus); the threshold sits in the ga
 not on any one log.
 
 The decision is the log's, made once before the run from all its readings, like the
-"no return" detection of :func:`jaxslam.datasets.carmen.detect_no_return`; it is
+"no return" detection of :func:`jaxslam.datasets.no_return.detect_no_return`; it is
 reported in ``summary.json`` (``range_rule``). An explicit ``usable_range`` or
 ``score_range`` (``--set``) turns it off. The streaming filter
 (:mod:`jaxslam.grid.stream`), which sees one scan at a time, cannot measure the
@@ -47,10 +47,10 @@ from typing import Any
 import numpy as np
 
 NEAR_RANGE = 20.0
-"""m: the usable range of indoor logs."""
+"""The usable range of indoor logs (m)."""
 
 FAR_RANGE = 80.0
-"""m: the usable range of logs with a far field (GMapping's default ``maxUrange``)."""
+"""The usable range (m) of logs with a far field (GMapping's default ``maxUrange``)."""
 
 FAR_FRACTION = 0.10
 """Fraction of valid readings beyond :data:`NEAR_RANGE` above which the far field is used."""
