@@ -2,8 +2,8 @@ r"""The filter protocol: a particle filter is a value, ``ParticleFilter(init, st
 
 As blackjax's ``SamplingAlgorithm`` and optax's ``GradientTransformation``, a filter
 bundles two pure functions, built by a factory that closes over the static config and
-the params (:func:`jaxslam.srupf_gm`, :func:`jaxslam.gmapping`,
-:func:`jaxslam.erb_upf`, :func:`jaxslam.rb_upf`, or a filter of your own):
+the params (:func:`jaxslam.filters.srupf_gm`, :func:`jaxslam.filters.gmapping`,
+:func:`jaxslam.filters.erb_upf`, :func:`jaxslam.filters.rb_upf`, or a filter of your own):
 
 * ``init(*inputs) -> State``: the initial particles. The library's filters start
   deterministically, so their ``init`` takes no key;
@@ -39,7 +39,7 @@ is a few lines (``examples/own_motion_model.py``):
   Nicholson) and the square-root measurement update (eqs. 11-16,
   :func:`jaxslam.grid.srupf.sqrt_measurement_update`), then a draw around it
   (:func:`sample_pose`);
-* a resampler :data:`jaxslam.core.resampling.Resampler`, ``(key, log_weights) ->
+* a resampler ``jaxslam.core.resampling.Resampler``, ``(key, log_weights) ->
   ancestors``, applied when the ESS is low by :func:`reweight`.
 
 Example, a pose-only filter with its own motion model (a robot that drives forward
@@ -149,7 +149,7 @@ def reweight(
         log_weights: ``(N,)`` before the step.
         log_likelihoods: ``(N,)`` each particle's log weight increment.
         threshold: ratio of ``N``.
-        resampler: a :data:`jaxslam.core.resampling.Resampler` or its name (static).
+        resampler: a ``jaxslam.core.resampling.Resampler`` or its name (static).
 
     Returns:
         ``(ancestors (N,), new_log_weights (N,), info)``; gather the particles by

@@ -311,7 +311,7 @@ def calibrate_grid(
     validation_particles: int | None = None,
     validation_margin: float = 2.0,
 ):
-    """Fit SRUPF-GM's noise levels (default :data:`GRID_NOISE_NAMES`) on the first
+    """Fit SRUPF-GM's noise levels (default ``GRID_NOISE_NAMES``) on the first
     ``window`` scans of a CARMEN log by Adam on the predictive scan log-likelihood
     (module docstring), keeping the iterate chosen on the held-out end of the window
     (:func:`jaxslam.calibrate.fit.fit_and_select`; the arguments as for

@@ -34,14 +34,14 @@ Range policy (``valid`` and ``max_range_mask`` never overlap):
   that clear free space along max-range beams (GMapping's ``maxUrange`` logic).
 * A "no return" sentinel, a pile of readings just above the laser's real range
   with no PARAM saying so (MIT Killian: about 40,000 readings at 51.05-51.22 m; Orebro:
-  32.76 m), is found by :func:`detect_no_return` when ``max_range`` is not given;
+  32.76 m), is found by :func:`~jaxslam.datasets.no_return.detect_no_return` when ``max_range`` is not given;
   ``max_range`` then becomes the pile's start, so its readings are "no return" too.
 * otherwise: a hit, ``valid`` is True.
 
 Error policy. Malformed lines (a beam count that does not match the number of
 fields, non-numeric or non-finite numbers where numbers belong, truncated lines),
 scan timestamps that go back by more than ``max_backstep`` seconds, logs with no
-scans and truncated or corrupt gzip streams raise :class:`DataFormatError` naming the
+scans and truncated or corrupt gzip streams raise :class:`~jaxslam.datasets.paths.DataFormatError` naming the
 file, the line and the problem. With ``on_error="skip"`` a bad line is dropped instead
 and counted in ``stats`` (``"skipped_lines"`` and ``"skipped:<reason>"``), and its
 message is kept in ``problems``. Backward steps shorter than ``max_backstep`` are
@@ -51,8 +51,8 @@ angle, resolution, range limit) within one log is an error unless
 ``mixed_geometry="pad"``.
 
 Layout: the per-line parsers are in :mod:`jaxslam.datasets.carmen_parse`, the bulk and
-line-by-line readers in :mod:`jaxslam.datasets.carmen_read`; :func:`detect_no_return`
-(:mod:`jaxslam.datasets.no_return`) and :func:`select_keyframes`
+line-by-line readers in :mod:`jaxslam.datasets.carmen_read`; :func:`~jaxslam.datasets.no_return.detect_no_return`
+(:mod:`jaxslam.datasets.no_return`) and :func:`~jaxslam.datasets.keyframes.select_keyframes`
 (:mod:`jaxslam.datasets.keyframes`) are re-exported here.
 """
 
@@ -135,7 +135,7 @@ class CarmenLog:
         problems: messages of the lines skipped under ``on_error="skip"`` (the first
             100).
         no_return: what the "no return" sentinel detection decided
-            (:func:`detect_no_return`'s result and ``source``); when a pile was found,
+            (:func:`~jaxslam.datasets.no_return.detect_no_return`'s result and ``source``); when a pile was found,
             ``max_range`` is its start and ``stats["no_return_sentinel_readings"]``
             counts the readings it turned from hits into "no return".
         odom_speeds: (N,) float64 logged translational velocity ``tv`` of the ODOM
@@ -200,12 +200,12 @@ def load_carmen(
 
     Args:
         path: the log file; gzip is detected from its first bytes.
-        on_error: ``"raise"`` (default) raises :class:`DataFormatError` on the first
+        on_error: ``"raise"`` (default) raises :class:`~jaxslam.datasets.paths.DataFormatError` on the first
             bad line; ``"skip"`` drops bad lines and counts them in ``stats``.
         max_range: range limit in m. Default: the ROBOTLASER1 line's own field, else
             PARAM ``robot_front_laser_max``, else :data:`DEFAULT_FLASER_MAX_RANGE`;
             lowered to the start of a "no return" sentinel pile if one is found
-            below it (:func:`detect_no_return`). An explicit value is used as is.
+            below it (:func:`~jaxslam.datasets.no_return.detect_no_return`). An explicit value is used as is.
         laser_offset: ``(x, y, theta)`` of the laser in the robot frame. Default: for
             FLASER logs the ``robot_frontlaser_*offset`` PARAMs if logged; otherwise
             the median of ``odom_pose^-1 (+) laser_pose`` over the scans. Scans whose
@@ -220,7 +220,7 @@ def load_carmen(
             the file. Lines of the other type are counted in
             ``stats["other_scan_messages"]``.
         detect_sentinel: look for a "no return" sentinel pile when ``max_range`` is
-            not given (see :func:`detect_no_return`; the decision is in ``no_return``).
+            not given (see :func:`~jaxslam.datasets.no_return.detect_no_return`; the decision is in ``no_return``).
         repair_odometry: check the odometry poses against the logged velocities and
             repair increments that lose the sign of reversing, and spread stale
             stretches (a pose repeated while readings did not arrive, then the whole

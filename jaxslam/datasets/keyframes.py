@@ -1,4 +1,4 @@
-"""GMapping's keyframe rule: which scans a filter processes (:func:`select_keyframes`)."""
+"""GMapping's keyframe rule: which scans a filter processes (:func:`~jaxslam.datasets.keyframes.select_keyframes`)."""
 
 from __future__ import annotations
 

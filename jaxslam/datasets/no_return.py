@@ -1,4 +1,4 @@
-"""Finding a "no return" sentinel pile in laser ranges (see :func:`detect_no_return`)."""
+"""Finding a "no return" sentinel pile in laser ranges (see :func:`~jaxslam.datasets.no_return.detect_no_return`)."""
 
 from __future__ import annotations
 

@@ -23,8 +23,8 @@ For the increment between consecutive scans :math:`i, i+1` (robot frame,
        \qquad \text{(backing up, pose moved forward)} \\
     \text{signed}_i &= \text{moving}_i \wedge \bar v_i < 0 \wedge u_{i,x} < 0
 
-The log's poses are declared sign-less when at least :data:`MIN_LOST` increments
-are lost and they are at least :data:`MIN_FRACTION` of the reversing ones
+The log's poses are declared sign-less when at least ``MIN_LOST`` increments
+are lost and they are at least ``MIN_FRACTION`` of the reversing ones
 (:math:`\text{lost} / (\text{lost} + \text{signed})`): a log whose poses reverse
 correctly, or whose velocities are only noisy around zero, is left alone. The repair
 negates the translation of each lost increment, :math:`(u_x, u_y, u_\theta) \to
@@ -49,8 +49,8 @@ For a stretch of scans :math:`i .. j-1` whose pose equals :math:`o_{i-1}` exactl
 followed by a new pose at :math:`j`, the catch-up is :math:`c = o_{i-1}^{-1} \oplus
 o_j`. The steps around it are :math:`u_b = o_{i-2}^{-1} \oplus o_{i-1}` and
 :math:`u_a = o_j^{-1} \oplus o_{j+1}`. The stretch is stale when the catch-up is
-larger than :data:`STALE_RATIO` times the mean of the two steps and larger than what
-any matcher reaches anyway (:data:`STALE_MIN_STEP`, :data:`STALE_MIN_TURN`), in
+larger than ``STALE_RATIO`` times the mean of the two steps and larger than what
+any matcher reaches anyway (``STALE_MIN_STEP``, ``STALE_MIN_TURN``), in
 translation or in rotation:
 
 .. math::
@@ -138,7 +138,7 @@ def repair_reverse_odometry(
 
 
 def _outlier(step: np.ndarray, near: list[int], step_xy: np.ndarray, step_th: np.ndarray) -> bool:
-    """Whether ``step`` exceeds :data:`STALE_RATIO` times the mean of the steps ``near``
+    """Whether ``step`` exceeds ``STALE_RATIO`` times the mean of the steps ``near``
     and the floor, in translation or in rotation (the module docstring's test)."""
     near_xy = float(np.mean(step_xy[near])) if near else 0.0
     near_th = float(np.mean(step_th[near])) if near else 0.0

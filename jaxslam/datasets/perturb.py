@@ -116,7 +116,7 @@ class PerturbedLog:
     Attributes:
         log_path: the CARMEN file written.
         relations_path: the ``.relations`` file written.
-        relations: the same relations as a :class:`jaxslam.metrics.relations.Relations`.
+        relations: the same relations as a :class:`~jaxslam.datasets.relations.Relations`.
         relation_kinds: (R,) ``"local"`` or ``"loop"`` per relation.
         reference: the source log (reference poses and stamps).
         odometry: (S, 3) the perturbed odometry written.

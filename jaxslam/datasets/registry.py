@@ -57,7 +57,7 @@ class DatasetInfo:
         name: the name used on the command line.
         kind: ``"landmark"`` or ``"laser"``.
         description: one line for ``jaxslam datasets``.
-        loader: one of :data:`LOADERS`: a CARMEN log (:func:`~jaxslam.datasets.carmen.load_carmen`
+        loader: one of ``LOADERS``: a CARMEN log (:func:`~jaxslam.datasets.carmen.load_carmen`
             on the single file), Victoria Park (:func:`~jaxslam.datasets.victoria_park.load_sequence`),
             or a simulator.
         files: path parts below the data root of each file needed.
@@ -95,7 +95,7 @@ class DatasetInfo:
 
     @property
     def scoring(self) -> str | None:
-        """How a run is scored: ``"relations"``, ``"gps"``, ``"ground truth"`` or None."""
+        """How a run is scored, one of ``"relations"``, ``"gps"``, ``"ground truth"`` or None."""
         if self.relations is not None:
             return "relations"
         if self.gps:
@@ -248,7 +248,7 @@ def load_dataset_log(name: os.PathLike | str, **options: Any) -> CarmenLog:
 
     Args:
         name: a name above, or a path to a log file.
-        **options: keyword arguments for :func:`load_carmen`; they override the
+        **options: keyword arguments for :func:`~jaxslam.datasets.carmen.load_carmen`; they override the
             per-log defaults.
     """
     key = str(name)

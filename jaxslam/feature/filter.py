@@ -47,7 +47,7 @@ Robustness policy (every case is counted in ``Info``, none is silent):
   arithmetic (:func:`clean_inputs`).
 * **Weights** live in log space and are normalised with ``logsumexp``; a likelihood
   that underflows gives ``-inf``, and a step in which every weight is ``-inf`` (or
-  NaN) leaves uniform weights (:func:`jaxslam.core.resampling.normalize_log_weights`),
+  NaN) leaves uniform weights (:func:`jaxslam.core.numerics.normalize_log_weights`),
   never NaN.
 * **Non-finite particles.** A particle whose sampled pose, pose factor or weight
   increment is NaN or inf is not propagated: it keeps its pose, factor and map from
@@ -59,7 +59,7 @@ Robustness policy (every case is counted in ``Info``, none is silent):
   of the landmark's coordinates), so a downdate that would lose positive
   definiteness is repaired (``num_cov_repairs``); a landmark update or a new
   landmark that is not finite is not stored (``num_rejected_landmarks``). The
-  pose factors use clamped closed-form Cholesky factors (:mod:`jaxslam.feature._small`).
+  pose factors use clamped closed-form Cholesky factors (``jaxslam.feature._small``).
 """
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ class State(NamedTuple):
         cumulative_log_likelihood: ``(N,)`` the sum of the particle's log weight
             increments (eq. 11) over its whole history, carried through resampling;
             its argmax is the best particle (:func:`jaxslam.runtime.driver.best_particle`).
-        landmarks: :class:`LandmarkTable` with leading axis ``N``.
+        landmarks: :class:`~jaxslam.feature.landmarks.LandmarkTable` with leading axis ``N``.
     """
 
     poses: Array
@@ -314,7 +314,7 @@ def step(
         key: PRNG key of this step.
         state: particles.
         control: ``(K, 3)`` rows ``[speed, steering, dt]``; ``dt = 0`` rows are padding.
-        observation: :class:`Observation` of this scan.
+        observation: :class:`~jaxslam.feature.particle.Observation` of this scan.
         params: traced parameters.
         config: static configuration.
 
@@ -387,7 +387,7 @@ Args:
     key: PRNG key; step ``t`` uses ``jaxslam.runtime.driver.step_keys(key, T)[t]``.
     state: from :func:`init`.
     controls: ``(T, K, 3)``.
-    observations: :class:`Observation` stacked over ``T``: ``values (T, Z, 2)``,
+    observations: :class:`~jaxslam.feature.particle.Observation` stacked over ``T``: ``values (T, Z, 2)``,
         ``mask (T, Z)``.
     params, config: as for :func:`step`.
 

@@ -23,8 +23,8 @@ within :math:`h/2` of the true pose finds every wall it should:
     \text{ the end point of beam } b,\ w_b \text{ the matching weights}).
 
 The best candidate of each heading is kept, and the :data:`REFINE` best of those are
-refined with GMapping's hill climb on the full map (:func:`jaxslam.grid.matching.
-hill_climb_match`, the tracking's own matcher and score). The best refined pose
+refined with GMapping's hill climb on the full map (:func:`jaxslam.grid.matching.hill_climb_match`,
+the tracking's own matcher and score). The best refined pose
 :math:`x^*` with score :math:`s^*` is a *candidate* for the local match
 :math:`(x_0, s_0)` when
 
@@ -159,7 +159,7 @@ POOL = 2
 """Fine cells per coarse cell along each axis (10 cm coarse cells at 5 cm)."""
 
 SHIFT_CELLS = 2
-"""Translation step of the candidates in coarse cells (20 cm at 5 cm): with the 3 x 3
+"""Translation step of the candidates in coarse cells (20 cm at 5 cm); with the 3 x 3
 dilation every point within half a step of a wall still reads it."""
 
 TURN_STEP = math.radians(1.0)
@@ -214,7 +214,7 @@ def window_half(frame, radius: float) -> int:
 def candidate_scores(coarse: Array, corner: Array, cell: float, start: Array, local_points: Array, weights: Array,
                      laser_offset: Array, turns: Array, m: int) -> Array:
     r"""``S`` of every candidate, ``(turns, 2m + 1, 2m + 1)`` ``[turn, y shift, x shift]``
-    (unnormalised): the shifts are ``-m .. m`` steps of :data:`SHIFT_CELLS` coarse cells.
+    (unnormalised): the shifts are ``-m`` to ``m`` steps of :data:`SHIFT_CELLS` coarse cells.
 
     For a heading, end point :math:`b` lies in coarse cell :math:`(c_b, r_b)` at the
     unshifted pose; at the shift of :math:`(i, j)` steps (:math:`|i|, |j| \le m`) it lies in

@@ -279,14 +279,15 @@ def run_grid_slam(
     """Run ``algorithm`` on a log and collect trajectory, map and diagnostics.
 
     Args:
-        log_or_sim: a :class:`CarmenLog` (or :class:`SimulatedLog`), a dataset name
-            known to :func:`jaxslam.datasets.registry.load_dataset_log`, or a path.
+        log_or_sim: a :class:`~jaxslam.datasets.carmen.CarmenLog` (or
+            :class:`~jaxslam.datasets.laser_sim.SimulatedLog`), a dataset name known to
+            :func:`jaxslam.datasets.registry.load_dataset_log`, or a path.
         algorithm: ``"srupf-gm"`` (pose correction), ``"srupf-gm-npc"`` or
             ``"gmapping"``.
         particles: number of particles.
         seed: PRNG seed.
         params: overrides of :func:`jaxslam.grid.types.default_params`.
-        config: overrides of the static :class:`GridSlamConfig` fields
+        config: overrides of the static :class:`~jaxslam.grid.types.GridSlamConfig` fields
             (``match_stride``, ``match_iterations``, ``refine_steps``, ``matcher``,
             ``resampler``, ``max_points``, ``window_range``).
         progress: show the progress bar.

@@ -14,7 +14,7 @@ A step of either filter (:mod:`jaxslam.grid.gmapping`, :mod:`jaxslam.grid.srupf`
 Steps 2-4 are :func:`finish_step`. If the maps cannot take the scan (pool full, or a
 tile outside the page table) the step is not applied at all: the state is returned
 unchanged with ``status`` set, later steps pass through (:func:`guard`), and the
-host grows the maps and repeats the step (:func:`jaxslam.grid.driver.run`).
+host grows the maps and repeats the step (:func:`jaxslam.grid.driver.run_filter`).
 
 Best particle: the particle with the largest accumulated log-likelihood
 (GMapping's ``weightSum``), :func:`jaxslam.runtime.driver.best_particle`, the meaning both
@@ -329,7 +329,7 @@ def finish_step(
 
 
 def empty_info(state: GridSlamState, config: GridSlamConfig) -> GridSlamInfo:
-    """The :class:`GridSlamInfo` of a step that updated nothing: zeros, the state's
+    """The :class:`~jaxslam.grid.types.GridSlamInfo` of a step that updated nothing: zeros, the state's
     weights, identity ancestors, ``keyframe`` False and the state's map status."""
     n, dtype = config.num_particles, state.poses.dtype
     zero = jnp.zeros((), dtype)

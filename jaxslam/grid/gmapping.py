@@ -75,7 +75,7 @@ def _step(
     Args:
         key: PRNG key for this step.
         state: filter state.
-        control: :class:`Odometry` (or a bare ``(3,)`` increment) since the previous
+        control: :class:`~jaxslam.grid.types.Odometry` (or a bare ``(3,)`` increment) since the previous
             keyframe; the noise gains are divided by ``sqrt(substeps)`` and
             multiplied by its ``noise_scale`` (tracked motion).
         observation: the keyframe's scan.

@@ -23,7 +23,7 @@ a match. The corrected increments are composed from :math:`o_0` into new odometr
 poses; every pair is independent, so all pairs are matched at once in chunks
 (``vmap``), in one jitted function.
 
-:func:`laser_corrected_log` returns a copy of a :class:`CarmenLog` with these poses
+:func:`laser_corrected_log` returns a copy of a :class:`~jaxslam.datasets.carmen.CarmenLog` with these poses
 as ``odom_poses`` (and the counts in ``stats``), for
 :func:`jaxslam.grid.experiment.run_grid_slam` or any other consumer of odometry.
 

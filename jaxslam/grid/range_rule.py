@@ -6,8 +6,7 @@ range of 20 m for both the map and the matcher is what the robustness suite was
 tuned and measured with. Outdoors, or in large halls, a fifth or more of the
 readings lie beyond it (the Freiburg campus 22-30 %, the Freiburg clinic 24 %, MRPT's
 UAL log 28 %): cropped at 20 m, a scan keeps a sparse near field that no longer pins
-the pose, and the map bends (perturbed campus, seeds 0 / 1: 10.6 / 3.8 m relations
-error, GMapping C++ with its 80 m: 0.29 / 0.15 m).
+the pose, and the map bends where GMapping, with its 80 m, keeps it straight.
 
 The rule, with :math:`f` the fraction of valid readings beyond ``NEAR_RANGE``:
 
@@ -17,23 +16,19 @@ The rule, with :math:`f` the fraction of valid readings beyond ``NEAR_RANGE``:
   max_range)``: the map and the matcher see the far field, every beam weighing 1, as
   GMapping does with its 80 m ``maxUrange``.
 
-Why not 80 m everywhere: on MIT Killian (1.3 % far readings) 80 m made the worst of
-three seeds 7.60 m against 1.11 m, and far beams at a discount (``score_range`` 20 m,
-:func:`jaxslam.grid.filter.beam_weights`) still 3.63 m against 1.50 m of five seeds,
-with Intel's worst 0.074 m against 0.045 m and a loop about 1.15x slower. A log with few far readings gains nothing from them and
-loses to chance. Why no discount where the far field is used: on the perturbed
-campus, seeds 0-4 on the same code, all compiled pinned to one core, the discount
-scored 0.79 / 5.60 / 1.46 / 1.63 / 2.01 m and the full weight 0.79 / 0.29 / 6.16 /
-0.35 / 0.25 m: better on three seeds and in the mean, with one failing seed each
-(unpinned, the full weight gives 0.68 / 0.90 / 0.11 / 0.88 / 0.16 m: on this log the
-compiled program's rounding is a draw too). Why 10 %: the logs
+Why not 80 m everywhere: a log with few far readings gains nothing from them and
+loses to chance; on indoor logs the far field, at full weight or at a discount
+(``score_range`` 20 m, :func:`jaxslam.grid.filter.beam_weights`), made the worst
+seeds fail and the loop slower. Why no discount where the far field is used: on the
+perturbed campus the full weight does better in the mean and on most seeds.
+``benchmarks/grid_robustness.py`` (``--variant``) measures both. Why 10 %: the logs
 measured lie either at or below 4 % (indoor: Intel, FR079, Killian, CSAIL, Orebro, FHW, Infinite Corridor,
 Seattle, Belgioioso, Edmonton, Freiburg 101) or at or above 12 % (Acapulco, MRPT's
 Sena, the Freiburg clinic, MRPT's UAL, the campus); the threshold sits in the gap,
 not on any one log.
 
 The decision is the log's, made once before the run from all its readings, like the
-"no return" detection of :func:`jaxslam.datasets.carmen.detect_no_return`; it is
+"no return" detection of :func:`jaxslam.datasets.no_return.detect_no_return`; it is
 reported in ``summary.json`` (``range_rule``). An explicit ``usable_range`` or
 ``score_range`` (``--set``) turns it off. The streaming filter
 (:mod:`jaxslam.grid.stream`), which sees one scan at a time, cannot measure the
@@ -47,10 +42,10 @@ from typing import Any
 import numpy as np
 
 NEAR_RANGE = 20.0
-"""m: the usable range of indoor logs."""
+"""The usable range of indoor logs (m)."""
 
 FAR_RANGE = 80.0
-"""m: the usable range of logs with a far field (GMapping's default ``maxUrange``)."""
+"""The usable range (m) of logs with a far field (GMapping's default ``maxUrange``)."""
 
 FAR_FRACTION = 0.10
 """Fraction of valid readings beyond :data:`NEAR_RANGE` above which the far field is used."""

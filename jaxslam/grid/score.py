@@ -56,7 +56,7 @@ def bilinear_occupancy(read: CellReader, points: Array, frame, saturation) -> Ar
     Args:
         read: ``(cols, rows) -> int8 cells`` of one map (unknown outside it).
         points: ``(..., 2)`` world coordinates.
-        frame: resolution and origin of the map (:class:`GridSpec` or a paged layout).
+        frame: resolution and origin of the map (:class:`~jaxslam.grid.map.GridSpec` or a paged layout).
         saturation: log-odds step count at which a cell counts as fully occupied.
     """
     dtype = points.dtype

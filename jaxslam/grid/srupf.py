@@ -200,7 +200,7 @@ def _step(
     Args:
         key: PRNG key for this step.
         state: filter state.
-        control: :class:`Odometry` or a bare ``(3,)`` increment since the previous
+        control: :class:`~jaxslam.grid.types.Odometry` or a bare ``(3,)`` increment since the previous
             keyframe (Q is per keyframe; ``substeps`` is not used; ``noise_scale``
             multiplies Q's motion-proportional part).
         observation: the keyframe's scan.

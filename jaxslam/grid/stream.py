@@ -86,7 +86,7 @@ class StreamingGridSlam:
         particles: number of particles.
         seed: PRNG seed (the batch run's).
         params: overrides of :func:`jaxslam.grid.types.default_params`.
-        config: overrides of the static :class:`GridSlamConfig` fields.
+        config: overrides of the static :class:`~jaxslam.grid.types.GridSlamConfig` fields.
         linear_update, angular_update, temporal_update: keyframe rule on the tracked
             motion (m, rad, s; GMapping's linearUpdate, angularUpdate,
             temporalUpdate; negative temporal disables it); ``None``: the filter's

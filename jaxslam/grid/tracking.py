@@ -123,6 +123,8 @@ with the tracked motion :math:`m_t` of the scan (``Info.motion``), see
 
 from __future__ import annotations
 
+import inspect
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -372,7 +374,7 @@ def is_keyframe(since: Array, params: GridSlamParams) -> Array:
 def per_scan(keyframe_step):
     """The per-scan step of a filter whose (unguarded) keyframe step is ``keyframe_step``
     (see the module docstring). Same signature; ``control`` is the odometry
-    :class:`Odometry` ``(increment, 1, dt)`` since the previous scan."""
+    :class:`~jaxslam.grid.types.Odometry` ``(increment, 1, dt)`` since the previous scan."""
 
     def step(key: Array, state: GridSlamState, control, observation: Scan, params: GridSlamParams,
              config: GridSlamConfig):
@@ -407,7 +409,8 @@ def per_scan(keyframe_step):
         return jax.lax.cond(is_keyframe(since, params), keyframe, between, key, state)
 
     step.__doc__ = (
-        f"Every scan a step (:mod:`jaxslam.grid.tracking`) around the keyframe step:\n\n{keyframe_step.__doc__}"
+        "Every scan a step (:mod:`jaxslam.grid.tracking`) around the keyframe step:\n\n"
+        + inspect.cleandoc(keyframe_step.__doc__ or "")
     )
     step.__name__ = "scan_step"
     return step

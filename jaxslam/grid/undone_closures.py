@@ -62,7 +62,7 @@ def judge_at_end(memory: np.ndarray, params) -> np.ndarray:
 
     Args:
         memory: ``(MEMORY,)`` the final state's ``closure_memory``.
-        params: the run's :class:`jaxslam.grid.types.Params` (host values).
+        params: the run's :class:`~jaxslam.grid.types.GridSlamParams` (host values).
 
     Returns:
         ``(4,)`` the row :func:`take_back` reads after the last scan's: ``[n + 1, A]``

@@ -4,7 +4,7 @@ R. Kümmerle, B. Steder, C. Dornhege, M. Ruhnke, G. Grisetti, C. Stachniss,
 A. Kleiner, "On measuring the accuracy of SLAM algorithms", Autonomous Robots
 27(4):387-407, 2009, Sec. 3, Eq. (1)-(2). For ground-truth relations
 ``delta*_ij`` (the pose at ``t_j`` in the frame of the pose at ``t_i``) and an
-estimated trajectory ``x``:
+estimated trajectory ``x``::
 
     delta_ij = x_i^-1 (+) x_j
     e_ij     = delta_ij (-) delta*_ij = delta*_ij^-1 (+) delta_ij
@@ -55,7 +55,7 @@ __all__ = [
 
 DATASET_RELATIONS = {info.name: info.relations for info in DATASETS.values() if info.relations is not None}
 """Dataset name -> path parts of its relations file, for the registry's entries
-that have one (a view of :data:`jaxslam.datasets.registry.DATASETS`)."""
+that have one (a view of ``jaxslam.datasets.registry.DATASETS``)."""
 
 _PLANAR_TOL = 1e-9
 
@@ -159,7 +159,7 @@ def relation_errors(
     """Per-relation translational and rotational errors of a trajectory.
 
     Args:
-        relations: a :class:`Relations` or a path to a ``.relations`` file.
+        relations: a :class:`~jaxslam.datasets.relations.Relations` or a path to a ``.relations`` file.
         timestamps: (T,) stamps of the trajectory (same clock as the relations).
         poses: (T, 3) poses ``(x, y, theta)``.
         tolerance: stamp matching tolerance (s); see the module docstring.
@@ -191,7 +191,7 @@ def relations_metric(
     """Kümmerle et al. 2009 relation metric of a trajectory (see the module docstring).
 
     Args:
-        relations: a :class:`Relations` or a path to a ``.relations`` file.
+        relations: a :class:`~jaxslam.datasets.relations.Relations` or a path to a ``.relations`` file.
         timestamps: (T,) stamps of the trajectory.
         poses: (T, 3) poses ``(x, y, theta)``.
         tolerance: stamp matching tolerance (s).

@@ -1,5 +1,5 @@
 r"""The XLA compiler options of jaxslam's programs, the ``jit`` that applies them, and
-the number of threads XLA's CPU runtime runs them on (:func:`set_threads`).
+the number of threads XLA's CPU runtime runs them on (:func:`~jaxslam.runtime.compiler.set_threads`).
 
 The grid filters' programs that jaxslam compiles and runs itself (the chunk runners
 of :func:`jaxslam.grid.driver.run_filter`, which every CLI run, benchmark and notebook
@@ -110,7 +110,7 @@ def jit(fun=None, /, **kwargs):
 
 
 THREADS_ENV = "JAXSLAM_THREADS"
-"""Threads of XLA's CPU runtime for a run: a count, or ``all`` (XLA's default, every
+"""Threads of XLA's CPU runtime for a run, a count or ``all`` (XLA's default, every
 core); unset: :func:`auto_threads`. An explicit ``threads`` argument wins."""
 
 SINGLE_THREAD_MAX_PARTICLES = {"erb-upf": 300, "rb-upf": 300}

@@ -18,7 +18,7 @@ Every filter module (:mod:`jaxslam.feature.filter`, :mod:`jaxslam.grid.gmapping`
 These module functions take the params and the static config as arguments, so that
 the chunk runners below carry the params (a sweep never recompiles). The filters as
 values, with the config and params bound (:class:`jaxslam.base.ParticleFilter`,
-:func:`jaxslam.srupf_gm` and the other factories), wrap these same functions.
+:func:`jaxslam.filters.srupf_gm` and the other factories), wrap these same functions.
 
 **Step keys.** Step ``t`` of a run uses ``step_keys(key, T)[t]``, i.e.
 ``jax.random.split(key, T)[t]`` (:func:`step_keys`), whichever driver runs it
