@@ -6,22 +6,22 @@ papers they implement.
 
 The public API:
 
-* filters as values (:mod:`jaxslam.base`, :mod:`jaxslam.filters`): :class:`ParticleFilter`,
-  the factories :func:`srupf_gm`, :func:`srupf_gm_npc`, :func:`gmapping`,
-  :func:`erb_upf`, :func:`rb_upf`, and :func:`run`, which scans any filter; the
-  parts of a filter of one's own: :class:`MotionModel`, :class:`MeasurementModel`,
-  :func:`sample_pose`, :func:`reweight`, :class:`Info`;
-* whole runs on a dataset: :func:`run_grid_slam` (a CARMEN log, a ROS bag's scans or
-  the laser simulator) with :class:`GridSlamResult`, :func:`run_landmark_slam`
-  (Victoria Park or the landmark simulator) with :class:`LandmarkSlamResult`;
-* the grid filters' types (:class:`GridSlamConfig`, :class:`GridSlamParams`,
-  :class:`GridSlamState`, :class:`GridSlamInfo`, :class:`Odometry`, :class:`Scan`,
-  :func:`default_params`, :func:`make_config`) and the landmark filters'
-  (:class:`LandmarkConfig`, :class:`LandmarkParams`, :class:`LandmarkState`,
-  :class:`LandmarkInfo`, :class:`Observation`);
-* maps: :func:`save_map` (PGM + YAML and PNG), :func:`load_map` (a run's lossless
-  ``map.npz`` or any ROS ``map_server`` YAML) and :class:`OccupancyMap`;
-* localization in a known map: :func:`mcl`, Monte Carlo localization on the same
+* filters as values (:mod:`jaxslam.base`, :mod:`jaxslam.filters`): :class:`~jaxslam.base.ParticleFilter`,
+  the factories :func:`~jaxslam.filters.srupf_gm`, :func:`~jaxslam.filters.srupf_gm_npc`, :func:`~jaxslam.filters.gmapping`,
+  :func:`~jaxslam.filters.erb_upf`, :func:`~jaxslam.filters.rb_upf`, and :func:`~jaxslam.base.run`, which scans any filter; the
+  parts of a filter of one's own: :class:`~jaxslam.base.MotionModel`, :class:`~jaxslam.base.MeasurementModel`,
+  :func:`~jaxslam.base.sample_pose`, :func:`~jaxslam.base.reweight`, :class:`~jaxslam.base.Info`;
+* whole runs on a dataset: :func:`~jaxslam.grid.experiment.run_grid_slam` (a CARMEN log, a ROS bag's scans or
+  the laser simulator) with :class:`~jaxslam.grid.experiment.GridSlamResult`, :func:`~jaxslam.feature.experiment.run_landmark_slam`
+  (Victoria Park or the landmark simulator) with :class:`~jaxslam.feature.experiment.LandmarkSlamResult`;
+* the grid filters' types (:class:`~jaxslam.grid.types.GridSlamConfig`, :class:`~jaxslam.grid.types.GridSlamParams`,
+  :class:`~jaxslam.grid.types.GridSlamState`, :class:`~jaxslam.grid.types.GridSlamInfo`, :class:`~jaxslam.grid.types.Odometry`, :class:`~jaxslam.grid.types.Scan`,
+  :func:`~jaxslam.grid.types.default_params`, :func:`~jaxslam.grid.experiment.make_config`) and the landmark filters'
+  (:class:`LandmarkConfig <jaxslam.feature.params.Config>`, :class:`LandmarkParams <jaxslam.feature.params.Params>`, :class:`LandmarkState <jaxslam.feature.filter.State>`,
+  :class:`LandmarkInfo <jaxslam.feature.filter.Info>`, :class:`~jaxslam.feature.particle.Observation`);
+* maps: :func:`~jaxslam.grid.export.save_map` (PGM + YAML and PNG), :func:`~jaxslam.grid.mapfile.load_map` (a run's lossless
+  ``map.npz`` or any ROS ``map_server`` YAML) and :class:`~jaxslam.grid.mapfile.OccupancyMap`;
+* localization in a known map: :func:`~jaxslam.localization.monte_carlo.mcl`, Monte Carlo localization on the same
   ``init``/``step`` protocol.
 
 The names are imported on first use: the command line imports this package on every
@@ -63,7 +63,7 @@ _HOMES = {
     "Observation": "jaxslam.feature.filter",
     "load_map": "jaxslam.grid.mapfile",
     "OccupancyMap": "jaxslam.grid.mapfile",
-    "mcl": "jaxslam.localization.mcl",
+    "mcl": "jaxslam.localization.monte_carlo",
 }
 # The landmark filters' types, under names that say so.
 _RENAMED = {

@@ -2,7 +2,7 @@
 
 ``jaxslam localize --map DIR|map.yaml|map.npz --dataset LOG|BAG [--initial-pose X Y
 THETA [--initial-std SX SY STH]] [--global] --out DIR`` reads the map
-(:func:`jaxslam.grid.load_map`) and the log as ``jaxslam run`` does (a dataset name,
+(:func:`jaxslam.grid.mapfile.load_map`) and the log as ``jaxslam run`` does (a dataset name,
 a CARMEN log or a ROS bag), runs :func:`jaxslam.localization.experiment.localize` and
 writes into ``OUT``:
 
@@ -87,14 +87,14 @@ def report(summary: dict, out: Path) -> str:
 
 
 def _param_names() -> list[str]:
-    from jaxslam.localization.mcl import DEFAULTS
+    from jaxslam.localization.monte_carlo import DEFAULTS
 
     return sorted(DEFAULTS)
 
 
 def _overrides(items: list[str]) -> dict[str, float]:
     from jaxslam.app.runs import RunError
-    from jaxslam.localization.mcl import DEFAULTS
+    from jaxslam.localization.monte_carlo import DEFAULTS
 
     values = {}
     for item in items:

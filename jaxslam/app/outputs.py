@@ -6,7 +6,7 @@
 * landmark runs: ``landmarks.csv`` (id, x, y, covariance);
 * grid runs: ``map.pgm`` + ``map.yaml`` (ROS map_server convention) and ``map.png``
   (:func:`jaxslam.grid.export.save_map`), and ``map.npz``, the same map losslessly
-  (:func:`jaxslam.grid.mapfile.save_map_npz`, read back by :func:`jaxslam.grid.load_map`);
+  (:func:`jaxslam.grid.mapfile.save_map_npz`, read back by :func:`jaxslam.grid.mapfile.load_map`);
 * ``arrays.npz`` — the data the figures are drawn from, so that :func:`replot` (``jaxslam
   plot``) redraws every figure of the folder: ``trajectory.png`` (landmark runs) or
   ``map_trajectory.png`` and ``map.png`` (grid runs), and ``health.png``.

@@ -3,7 +3,7 @@ matching, a GMapping-style filter and SRUPF-GM (Zandara & Nicholson 2009).
 
 Modules:
 
-* :mod:`~jaxslam.grid.map` — dense grid geometry (:class:`GridSpec`), cell type, readers.
+* :mod:`~jaxslam.grid.map` — dense grid geometry (:class:`~jaxslam.grid.map.GridSpec`), cell type, readers.
 * :mod:`~jaxslam.grid.paged` — paged maps: tile pool, page tables, copy on write, growth.
 * :mod:`~jaxslam.grid.rays` — the cells each beam crosses (Bresenham), laid out for batching.
 * :mod:`~jaxslam.grid.update` — ray updates of all particles' maps at once.
@@ -17,9 +17,9 @@ Modules:
 * :mod:`~jaxslam.grid.gmapping`, :mod:`~jaxslam.grid.srupf` — the filters
   (``init``/``step``/``run``).
 * :mod:`~jaxslam.grid.export` — PGM + YAML (ROS map_server) and PNG.
-* :mod:`~jaxslam.grid.mapfile` — the lossless ``map.npz`` and :func:`load_map` (it, a
+* :mod:`~jaxslam.grid.mapfile` — the lossless ``map.npz`` and :func:`~jaxslam.grid.mapfile.load_map` (it, a
   run folder or any ROS map_server YAML).
-* :mod:`~jaxslam.grid.experiment` — :func:`run_grid_slam` on a CARMEN log.
+* :mod:`~jaxslam.grid.experiment` — :func:`~jaxslam.grid.experiment.run_grid_slam` on a CARMEN log.
 """
 
 from jaxslam.grid import driver, export, filter, gmapping, matching, paged, rays, score, srupf, types, update

@@ -87,7 +87,7 @@ def known_pose_log_odds(
 
 def known_pose_map(log_odds: np.ndarray, origin, resolution: float, occupied_thresh: float = 0.65,
                    free_thresh: float = 0.196) -> OccupancyMap:
-    """An :class:`OccupancyMap` of natural log-odds (``map_server``'s thresholds)."""
+    """An :class:`~jaxslam.grid.mapfile.OccupancyMap` of natural log-odds (``map_server``'s thresholds)."""
     with np.errstate(over="ignore"):  # exp overflows to inf for very free cells: p = 0
         prob = 1.0 / (1.0 + np.exp(-np.asarray(log_odds, np.float64)))
     return OccupancyMap(occupancy=threshold_values(prob, occupied_thresh, free_thresh), resolution=float(resolution),

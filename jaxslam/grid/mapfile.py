@@ -272,7 +272,7 @@ def parse_map_yaml(path: os.PathLike | str) -> tuple[dict, dict]:
 
     Reads the flat subset map files use: ``key: value`` lines with numbers, plain or
     quoted strings, flow lists ``[a, b, c]`` and ``#`` comments; a ``---`` document
-    start is skipped. Anything else is a :class:`DataFormatError` naming the line.
+    start is skipped. Anything else is a :class:`~jaxslam.datasets.paths.DataFormatError` naming the line.
     """
     path = Path(path)
     try:
@@ -517,7 +517,7 @@ def load_map(path: os.PathLike | str, require_free: bool = True) -> OccupancyMap
             in it).
 
     Returns:
-        The :class:`OccupancyMap`.
+        The :class:`~jaxslam.grid.mapfile.OccupancyMap`.
 
     Raises:
         DatasetNotFoundError: the path (or the folder's map) does not exist.

@@ -4,12 +4,14 @@ Modules:
 
 * :mod:`~jaxslam.localization.field` — the map's distance field (SciPy's exact
   Euclidean distance transform) and the beam-endpoint likelihood.
-* :mod:`~jaxslam.localization.mcl` — :func:`mcl`, the filter (``init``/``step``).
-* :mod:`~jaxslam.localization.experiment` — :func:`localize`, a log in a map.
+* :mod:`~jaxslam.localization.monte_carlo` — :func:`~jaxslam.localization.monte_carlo.mcl`, the
+  filter (``init``/``step``).
+* :mod:`~jaxslam.localization.experiment` — :func:`~jaxslam.localization.experiment.localize`, a
+  log in a map.
 """
 
 from jaxslam.localization.field import LikelihoodField, distance_at, likelihood_field
-from jaxslam.localization.mcl import MclConfig, MclInfo, MclParams, MclState, default_params, mcl
+from jaxslam.localization.monte_carlo import MclConfig, MclInfo, MclParams, MclState, default_params, mcl
 
 __all__ = [
     "LikelihoodField",

@@ -1,4 +1,5 @@
-"""Localize a laser log in a saved map: :func:`localize` runs :func:`jaxslam.localization.mcl`.
+"""Localize a laser log in a saved map: :func:`~jaxslam.localization.experiment.localize`
+runs :func:`~jaxslam.localization.monte_carlo.mcl`.
 
 The log is any :class:`jaxslam.datasets.carmen.CarmenLog` (a CARMEN log, a ROS bag
 read by :func:`jaxslam.datasets.rosbag.load_rosbag`, a simulation). Every scan is one
@@ -29,7 +30,7 @@ from jaxslam.datasets.geometry import se2_between
 from jaxslam.grid.mapfile import OccupancyMap
 from jaxslam.grid.types import Scan
 from jaxslam.localization.field import free_cell_centres, likelihood_field
-from jaxslam.localization.mcl import DEFAULTS, MclConfig, MclParams, default_params, mcl
+from jaxslam.localization.monte_carlo import DEFAULTS, MclConfig, MclParams, default_params, mcl
 from jaxslam.runtime.driver import step_keys
 from jaxslam.runtime.keys import seed_key
 
@@ -42,9 +43,9 @@ class LocalizationResult:
 
     Attributes:
         times: ``(S,)`` scan stamps; ``trajectory``: ``(S, 3)`` the estimate per scan.
-        info: per-scan :class:`jaxslam.localization.mcl.MclInfo` fields as arrays.
+        info: per-scan :class:`jaxslam.localization.monte_carlo.MclInfo` fields as arrays.
         snapshots: ``[(scan, poses (M, 3))]`` particle clouds (at most
-            :data:`CLOUD_POINTS` of the particles in use each) after that scan;
+            ``CLOUD_POINTS`` of the particles in use each) after that scan;
             scan -1 is the initial cloud.
         config: the static settings; ``params``: the scalar parameters used.
         wall_s: filter time without compilation; ``compile_s``: compilation.
@@ -77,7 +78,7 @@ def log_controls(log) -> tuple[np.ndarray, Scan]:
 def make_filter_inputs(log, grid: OccupancyMap, particles: int, overrides: dict | None = None,
                        max_beams: int = 60, min_particles: int | None = None, max_distance: float = 2.0,
                        dtype=np.float32) -> tuple[MclConfig, MclParams]:
-    """The :class:`MclConfig` and :class:`MclParams` for a log in a map."""
+    """The :class:`~jaxslam.localization.monte_carlo.MclConfig` and :class:`~jaxslam.localization.monte_carlo.MclParams` for a log in a map."""
     num_beams = int(np.asarray(log.ranges).shape[1])
     if min_particles is None:
         min_particles = min(particles, max(100, particles // 50))
@@ -139,17 +140,17 @@ def localize(
     Args:
         log: a laser log (``ranges``, ``valid``, ``angles``, ``odom_poses``,
             ``scan_times``, ``laser_offset``, ``max_range``).
-        grid: the map (:func:`jaxslam.grid.load_map`).
+        grid: the map (:func:`jaxslam.grid.mapfile.load_map`).
         particles: the capacity (the number in use adapts, KLD).
         seed: the run's seed (initial draw and every step's key).
         initial_pose: ``(x, y, theta)`` in the map frame, or None for a uniform start.
         initial_std: standard deviations of the start around ``initial_pose``.
-        overrides: :data:`jaxslam.localization.mcl.DEFAULTS` values to change.
+        overrides: ``jaxslam.localization.monte_carlo.DEFAULTS`` values to change.
         max_steps: use the first scans only.
         chunk: scans per compiled chunk.
         snapshots: particle clouds kept: the initial one and ``snapshots - 1`` at
             chunk ends spread over the run (the last included).
-        max_beams, min_particles: see :class:`MclConfig`.
+        max_beams, min_particles: see :class:`~jaxslam.localization.monte_carlo.MclConfig`.
         dtype: float32 (default) or float64 (needs JAX's 64-bit mode).
     """
     increments, scans = log_controls(log)

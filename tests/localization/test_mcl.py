@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from jaxslam.core.resampling import effective_sample_size
 from jaxslam.grid.mapfile import segment_map
 from jaxslam.localization.experiment import localize, summary, tracking_errors
-from jaxslam.localization.mcl import count_bins, kld_bound, mode_estimate, pose_bins, tempering_power
+from jaxslam.localization.monte_carlo import count_bins, kld_bound, mode_estimate, pose_bins, tempering_power
 from tests.localization.worlds import BOUNDS, crate_world, kidnapped_poses, laser_log, ring_poses
 
 CHUNK = 128

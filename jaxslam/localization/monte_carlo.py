@@ -115,7 +115,7 @@ class MclConfig:
 class MclParams(NamedTuple):
     """Traced parameters: the map, the sensor geometry and every noise level and rate.
 
-    Defaults (:func:`default_params`) follow AMCL's recommended settings where it has
+    Defaults (:func:`~jaxslam.localization.monte_carlo.default_params`) follow AMCL's recommended settings where it has
     them (``z_hit``, ``z_rand``, ``sigma_hit``, update thresholds, ``alpha_slow``,
     ``alpha_fast``, bin sizes) and GMapping's motion gains.
     """
@@ -157,7 +157,7 @@ DEFAULTS = dict(
 
 def default_params(field: LikelihoodField, free_cells, beam_angles, max_range: float,
                    laser_offset=(0.0, 0.0, 0.0), **overrides) -> MclParams:
-    """:class:`MclParams` with :data:`DEFAULTS`, any of them overridden by name."""
+    """:class:`~jaxslam.localization.monte_carlo.MclParams` with ``DEFAULTS``, any of them overridden by name."""
     unknown = set(overrides) - set(DEFAULTS)
     if unknown:
         raise ValueError(f"unknown MCL parameter(s) {sorted(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
@@ -319,9 +319,9 @@ def mcl(config: MclConfig, params: MclParams) -> ParticleFilter:
     """Augmented, KLD-adaptive Monte Carlo localization in ``params.field``'s map.
 
     Args:
-        config: static sizes (:class:`MclConfig`).
+        config: static sizes (:class:`~jaxslam.localization.monte_carlo.MclConfig`).
         params: the map's field, free cells, sensor geometry and noise levels
-            (:func:`default_params`).
+            (:func:`~jaxslam.localization.monte_carlo.default_params`).
 
     Returns:
         ``ParticleFilter(init, step)``: ``init(key, pose=None, pose_std=None)`` draws
