@@ -63,9 +63,12 @@ def defaults(algorithm: str) -> dict[str, str]:
 
 
 def typed(value: float) -> str:
-    """``value`` as one would type it: the shortest text that reads back as it
-    (``0.05``, ``20``, ``-1e+09``)."""
-    return next(text for text in (f"{value:.{digits}g}" for digits in range(1, 18)) if float(text) == value)
+    """``value`` as one would type it: the shortest text that reads back as the same
+    float32 (the dtype the filters run in by default): ``0.05``, ``20``, ``-1e+09``,
+    ``0.05235988`` for 3 degrees in radians."""
+    target = np.float32(value)
+    return next(text for text in (f"{value:.{digits}g}" for digits in range(1, 18))
+                if np.float32(float(text)) == target)
 
 
 def parameter_reference() -> list[ParamRow]:
