@@ -80,7 +80,7 @@ def test_a_laser_run_writes_a_complete_valid_folder(run_cli, tmp_path):
     assert "nonfinite_values" not in summary and summary["finite"]
     assert summary["log_checks"]["scans"] == 30 and summary["log_checks"]["stamps_advance"]
     assert sorted(p.name for p in out.iterdir()) == [
-        "arrays.npz", "map.pgm", "map.png", "map.yaml", "run.json", "summary.json", "trajectory.tum"]
+        "arrays.npz", "map.npz", "map.pgm", "map.png", "map.yaml", "run.json", "summary.json", "trajectory.tum"]
     rows = np.loadtxt(out / "trajectory.tum", comments="#")
     assert rows.shape == (30, 8) and np.isfinite(rows).all()
     # the path follows the room's drive (0.1 m a scan from x = 2 m)
