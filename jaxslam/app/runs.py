@@ -169,8 +169,8 @@ def _load_log(info, path, seed, bag, max_range, mixed_geometry=None):
         except (DataFormatError, FileNotFoundError):
             raise
         except Exception as err:  # noqa: BLE001 - any failure of the bag reader on damaged bytes
-            text = " ".join(str(err).split())
-            detail = f"{type(err).__name__}: {text}" if text else type(err).__name__
+            # DataFormatError joins a parser's multi-line message into one line
+            detail = f"{type(err).__name__}: {err}" if str(err).strip() else type(err).__name__
             raise DataFormatError(path, None, f"cannot read the bag ({detail})") from None
     options = {"max_range": max_range} if max_range is not None else {}
     if mixed_geometry is not None:
