@@ -64,6 +64,7 @@ from jax.scipy.special import logsumexp
 
 from jaxslam.base import ParticleFilter
 from jaxslam.core import se2
+from jaxslam.core.numerics import safe_divide
 from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, systematic
 from jaxslam.grid.types import Scan
 from jaxslam.localization.field import LikelihoodField, beam_log_likelihood, distance_at
@@ -398,7 +399,7 @@ def mcl(config: MclConfig, params: MclParams) -> ParticleFilter:
         w_fast = jnp.where(updated, w_fast, state.w_fast)
         log_weights = jnp.where(updated, normalize_log_weights(jnp.where(active, tempered, -jnp.inf)), prior)
         ess = effective_sample_size(log_weights)
-        inject_p = jnp.where(updated & (w_slow > 0), jnp.maximum(0.0, 1.0 - w_fast / jnp.maximum(w_slow, 1e-30)), 0.0)
+        inject_p = jnp.maximum(0.0, 1.0 - safe_divide(w_fast, w_slow, 1.0, updated & (w_slow > 0)))
         inject_p = jnp.where(inject_p > params.inject_trigger, inject_p, 0.0)
         n = state.num_active.astype(dtype)
         resampled = updated & ((ess < params.ess_threshold * n) | (inject_p > 0))
