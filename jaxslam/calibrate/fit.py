@@ -305,39 +305,30 @@ def split_window(window: int, validation: float) -> int:
     return window - held
 
 
-def fit_and_select(
-    objective: Any,
-    args: tuple,
-    theta: Any,
-    steps: int,
-    learning_rate: float,
-    filters: int,
+def select_iterate(
+    ascent: Ascent,
     seed: int,
-    decay: float = 1.0,
-    callback: Any = None,
     score: Callable[[jax.Array, Any], Any] | None = None,
     window: tuple[int, int, int] = (0, 0, 0),
     validate_every: int = 5,
     validation_filters: int = 8,
     validation_margin: float = 2.0,
     guard: Callable[[jax.Array, Any], Any] | None = None,
-) -> tuple[Ascent, int, int, Validation | None]:
-    """:func:`ascend`, then the iterate to keep: ``(ascent, kept step, step with the
-    best training objective, validation record)``. With ``score(keys, theta) ->
-    (filters,)`` held-out scores, the kept step is chosen by :func:`validate` on
-    ``window = (fit_scans, scans, validation particles)``; without, it is the best
-    training step."""
-    ascent = ascend(objective, args, theta, steps, learning_rate, filters, seed, decay, callback)
+) -> tuple[int, int, Validation | None]:
+    """The iterate of an :func:`ascend` to keep: ``(kept step, step with the best
+    training objective, validation record)``. With ``score(keys, theta) -> (filters,)``
+    held-out scores, the kept step is chosen by :func:`validate` on ``window =
+    (fit_scans, scans, validation particles)``; without, it is the best training step."""
     train_best = int(np.argmax(ascent.log_likelihood))
     if score is None:
-        return ascent, train_best, train_best, None
+        return train_best, train_best, None
     start = time.perf_counter()
-    candidates = validation_steps(steps, validate_every)
+    candidates = validation_steps(len(ascent.log_likelihood), validate_every)
     scores, guards, chosen = validate(score, ascent.trajectory, candidates, validation_filters, seed,
                                       validation_margin, guard)
     record = Validation(*window[:2], validation_filters, window[2], validation_margin, candidates, scores, chosen,
                         time.perf_counter() - start, guard_scores=guards)
-    return ascent, candidates[chosen], train_best, record
+    return candidates[chosen], train_best, record
 
 
 _PROGRAMS: dict[Any, Any] = {}
@@ -484,10 +475,9 @@ def calibrate(
             guard = validation_score(cfg, names, params_arr, val_data, fit_window, val_particles, guard_likelihood,
                                      dtype)
 
-    ascent, best, train_best, record = fit_and_select(
-        program, (params_arr, *fit_data), theta, steps, learning_rate, filters, seed, decay, callback, score,
-        (fit_window, window, val_particles), validate_every, validation_filters, validation_margin, guard,
-    )
+    ascent = ascend(program, (params_arr, *fit_data), theta, steps, learning_rate, filters, seed, decay, callback)
+    best, train_best, record = select_iterate(ascent, seed, score, (fit_window, window, val_particles), validate_every,
+                                              validation_filters, validation_margin, guard)
     if record is not None:
         record = dataclasses.replace(record, likelihood=likelihood, guard_likelihood=guard_likelihood)
     path = ascent.trajectory

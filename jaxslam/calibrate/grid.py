@@ -314,14 +314,15 @@ def calibrate_grid(
     """Fit SRUPF-GM's noise levels (default ``GRID_NOISE_NAMES``) on the first
     ``window`` scans of a CARMEN log by Adam on the predictive scan log-likelihood
     (module docstring), keeping the iterate chosen on the held-out end of the window
-    (:func:`jaxslam.calibrate.fit.fit_and_select`; the arguments as for
+    (:func:`jaxslam.calibrate.fit.ascend`, then
+    :func:`jaxslam.calibrate.fit.select_iterate`; the arguments as for
     :func:`jaxslam.calibrate.fit.calibrate`). ``samples``: draws per particle and
     keyframe. ``params``/``config``: overrides as for
     :func:`jaxslam.grid.experiment.run_grid_slam`, whose layout (pool doubled) the
     programs use: a window that needs more map than that gives non-finite values."""
     import dataclasses
 
-    from jaxslam.calibrate.fit import CalibrationResult, fit_and_select, split_window
+    from jaxslam.calibrate.fit import CalibrationResult, ascend, select_iterate, split_window
     from jaxslam.grid.experiment import run_grid_slam
     from jaxslam.grid.range_rule import apply_range_rule
     from jaxslam.grid.types import default_params
@@ -361,10 +362,9 @@ def calibrate_grid(
             # Step t of the inputs is scan t + 1: the held-out scans are steps fit_window - 1 on.
             return np.asarray(increments(keys, th.astype(dtype), prm, val_inputs))[:, fit_window - 1:].mean(1)
 
-    ascent, best, train_best, record = fit_and_select(
-        gradient, (prm, fit_inputs), theta, steps, learning_rate, filters, seed, decay, callback, score,
-        (fit_window, window, val_particles), validate_every, validation_filters, validation_margin,
-    )
+    ascent = ascend(gradient, (prm, fit_inputs), theta, steps, learning_rate, filters, seed, decay, callback)
+    best, train_best, record = select_iterate(ascent, seed, score, (fit_window, window, val_particles), validate_every,
+                                              validation_filters, validation_margin)
     path = ascent.trajectory
     after = with_log_noise(prm, jnp.log(jnp.asarray(path[best], dtype)), names)
     return CalibrationResult(

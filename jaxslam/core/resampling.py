@@ -64,36 +64,37 @@ def _invert_cdf(cdf: Array, positions: Array) -> Array:
     return jnp.clip(idx, 0, cdf.shape[0] - 1).astype(jnp.int32)
 
 
+def _sizes(log_weights: Array, num: int | None) -> tuple[int, jnp.dtype]:
+    """The number of draws (``num`` or one per weight) and the float dtype of the positions."""
+    return (log_weights.shape[0] if num is None else num), jnp.result_type(log_weights.dtype, float)
+
+
+def _at_positions(log_weights: Array, num: int | None, positions) -> Array:
+    """Indices of the weights' CDF at ``positions(num, dtype) -> (num,)`` in ``[0, 1)``."""
+    num, dtype = _sizes(log_weights, num)
+    return _invert_cdf(_cdf(log_weights), positions(num, dtype))
+
+
 def systematic(key: Array, log_weights: Array, num: int | None = None) -> Array:
     """Systematic resampling: one uniform offset for all ``num`` positions."""
-    num = log_weights.shape[0] if num is None else num
-    dtype = jnp.result_type(log_weights.dtype, float)
-    offset = jax.random.uniform(key, (), dtype)
-    positions = (jnp.arange(num, dtype=dtype) + offset) / num
-    return _invert_cdf(_cdf(log_weights), positions)
+    return _at_positions(log_weights, num,
+                         lambda n, dtype: (jnp.arange(n, dtype=dtype) + jax.random.uniform(key, (), dtype)) / n)
 
 
 def stratified(key: Array, log_weights: Array, num: int | None = None) -> Array:
     """Stratified resampling: one uniform draw per stratum."""
-    num = log_weights.shape[0] if num is None else num
-    dtype = jnp.result_type(log_weights.dtype, float)
-    offsets = jax.random.uniform(key, (num,), dtype)
-    positions = (jnp.arange(num, dtype=dtype) + offsets) / num
-    return _invert_cdf(_cdf(log_weights), positions)
+    return _at_positions(log_weights, num,
+                         lambda n, dtype: (jnp.arange(n, dtype=dtype) + jax.random.uniform(key, (n,), dtype)) / n)
 
 
 def multinomial(key: Array, log_weights: Array, num: int | None = None) -> Array:
     """Multinomial resampling: ``num`` independent categorical draws."""
-    num = log_weights.shape[0] if num is None else num
-    dtype = jnp.result_type(log_weights.dtype, float)
-    positions = jax.random.uniform(key, (num,), dtype)
-    return _invert_cdf(_cdf(log_weights), positions)
+    return _at_positions(log_weights, num, lambda n, dtype: jax.random.uniform(key, (n,), dtype))
 
 
 def residual(key: Array, log_weights: Array, num: int | None = None) -> Array:
     """Residual resampling: deterministic ``floor(num w)`` copies, the rest multinomial."""
-    num = log_weights.shape[0] if num is None else num
-    dtype = jnp.result_type(log_weights.dtype, float)
+    num, dtype = _sizes(log_weights, num)
     weights = jnp.exp(normalize_log_weights(log_weights))
     scaled = num * weights
     counts = jnp.floor(scaled).astype(jnp.int32)

@@ -410,16 +410,9 @@ def apply_writes(table: LandmarkTable, writes: TableWrites) -> LandmarkTable:
     return LandmarkTable(means, covs, evidence, active, w.count)
 
 
-def particle_step(
-    key: Array,
-    pose: Array,
-    pose_sqrt: Array,
-    table: LandmarkTable,
-    controls: Array,
-    observation: Observation,
-    params: Params,
-    config: Config,
-) -> ParticleOut:
-    """Steps 1-5 for one particle (module docstring), its table updated."""
-    out, writes = particle_writes(key, pose, pose_sqrt, table, controls, observation, params, config)
+def particle_step(key: Array, pose: Array, pose_sqrt: Array, table: LandmarkTable, *inputs) -> ParticleOut:
+    """Steps 1-5 for one particle (module docstring), its table updated:
+    :func:`particle_writes` (the same arguments: ``controls, observation, params,
+    config`` follow ``table``) with its writes applied."""
+    out, writes = particle_writes(key, pose, pose_sqrt, table, *inputs)
     return out._replace(landmarks=apply_writes(table, writes))

@@ -218,7 +218,7 @@ def combine_batch(pose_mean: Array, pose_sqrt: Array, terms: InnovationTerms, ma
     return Proposal(mean, sqrt_cov, log_det_cov, log_lik, num_used)
 
 
-def _proposal(
+def erb_proposal(
     pose_mean: Array,
     pose_sqrt: Array,
     landmark_means: Array,
@@ -226,9 +226,25 @@ def _proposal(
     observations: Array,
     mask: Array,
     params: Params,
-    sequential: bool,
-    perfect_map: bool,
+    sequential: bool = False,
+    *,
+    perfect_map: bool = False,
 ) -> Proposal:
+    """Exactly Rao-Blackwellized proposal (Sec. III-A, eqs. 9-11) of one particle.
+
+    Args:
+        pose_mean: ``(3,)`` predicted pose.
+        pose_sqrt: ``(3, 3)`` square root of the predicted pose covariance.
+        landmark_means: ``(k, 2)`` means of the associated landmarks.
+        landmark_chols: ``(k, 2, 2)`` Cholesky factors of their covariances.
+        observations: ``(k, 2)`` measured ranges and bearings.
+        mask: ``(k,)`` which rows are used.
+        params: filter parameters.
+        sequential: sequential instead of batch update (static).
+        perfect_map: take the landmarks as exactly known (static): the innovations
+            leave out the landmark covariance, which is the conventional proposal
+            (:func:`rb_proposal`).
+    """
     if not sequential:
         sig = sigma_observations(pose_mean, pose_sqrt, landmark_means, landmark_chols, params)
         terms = jax.vmap(innovation_terms, (0, 0, None, None))(sig, observations, params, perfect_map)
@@ -259,44 +275,10 @@ def _proposal(
     return Proposal(mean, sqrt, log_det, log_lik, used)
 
 
-def erb_proposal(
-    pose_mean: Array,
-    pose_sqrt: Array,
-    landmark_means: Array,
-    landmark_chols: Array,
-    observations: Array,
-    mask: Array,
-    params: Params,
-    sequential: bool = False,
-) -> Proposal:
-    """Exactly Rao-Blackwellized proposal (Sec. III-A, eqs. 9-11) of one particle.
-
-    Args:
-        pose_mean: ``(3,)`` predicted pose.
-        pose_sqrt: ``(3, 3)`` square root of the predicted pose covariance.
-        landmark_means: ``(k, 2)`` means of the associated landmarks.
-        landmark_chols: ``(k, 2, 2)`` Cholesky factors of their covariances.
-        observations: ``(k, 2)`` measured ranges and bearings.
-        mask: ``(k,)`` which rows are used.
-        params: filter parameters.
-        sequential: sequential instead of batch update (static).
-    """
-    return _proposal(pose_mean, pose_sqrt, landmark_means, landmark_chols, observations, mask, params, sequential, False)
-
-
-def rb_proposal(
-    pose_mean: Array,
-    pose_sqrt: Array,
-    landmark_means: Array,
-    landmark_chols: Array,
-    observations: Array,
-    mask: Array,
-    params: Params,
-    sequential: bool = False,
-) -> Proposal:
-    """Conventional Rao-Blackwellized proposal (eqs. 1-3, perfect map); same
-    signature as :func:`erb_proposal`; ``landmark_chols`` is ignored."""
-    return _proposal(pose_mean, pose_sqrt, landmark_means, landmark_chols, observations, mask, params, sequential, True)
+def rb_proposal(*args, **kwargs) -> Proposal:
+    """Conventional Rao-Blackwellized proposal (eqs. 1-3, perfect map): the
+    arguments of :func:`erb_proposal`; ``landmark_chols`` is ignored."""
+    return erb_proposal(*args, perfect_map=True, **kwargs)
 
 
 PROPOSAL_FUNCTIONS = {"erb": erb_proposal, "rb": rb_proposal}

@@ -209,22 +209,6 @@ def endpoint_occupancy(
     return value
 
 
-def scan_score(
-    read: CellReader,
-    pose: Array,
-    local_points: Array,
-    mask: Array,
-    laser_offset: Array,
-    frame,
-    model: ScoreModel,
-    kernel: str = "bilinear",
-    free_check: bool = False,
-) -> Array:
-    """Matching score ``sum_b w_b o(e_b)`` for one pose (``mask``: boolean or weights)."""
-    occ = endpoint_occupancy(read, pose, local_points, laser_offset, frame, model, kernel, free_check)
-    return jnp.sum(_weighted(mask, occ))
-
-
 def scan_log_likelihood(
     read: CellReader,
     pose: Array,
@@ -259,12 +243,16 @@ def make_score_fn(
     kernel: str = "bilinear",
     free_check: bool = False,
 ):
-    """``poses (C, 3) -> scores (C,)`` for one particle's map (closure for the matchers)."""
+    """``poses (C, 3) -> scores (C,)`` for one particle's map (closure for the
+    matchers): the matching score ``sum_b w_b o(e_b)`` of each pose (``mask``: boolean
+    or weights), the second value of :func:`scan_log_likelihood`."""
+
+    def one(pose: Array) -> Array:
+        occ = endpoint_occupancy(read, pose, local_points, laser_offset, frame, model, kernel, free_check)
+        return jnp.sum(_weighted(mask, occ))
 
     def score_fn(poses: Array) -> Array:
-        return jax.vmap(
-            lambda p: scan_score(read, p, local_points, mask, laser_offset, frame, model, kernel, free_check)
-        )(poses)
+        return jax.vmap(one)(poses)
 
     return score_fn
 
@@ -281,5 +269,4 @@ __all__ = [
     "gaussian_window_occupancy",
     "make_score_fn",
     "scan_log_likelihood",
-    "scan_score",
 ]

@@ -66,34 +66,19 @@ def quantise(value) -> Array:
     return jnp.round(jnp.asarray(value)).astype(jnp.int32)
 
 
-def update_grid(
-    grid: Array,
-    sensor_pose: Array,
-    lengths: Array,
-    hits: Array,
-    angles: Array,
-    layout: BeamLayout,
-    spec: GridSpec,
-    l_free,
-    l_occ,
-    l_max,
-) -> Array:
+def update_grid(grid: Array, free_cells: Array, hit_cells: Array, l_free, l_occ, l_max) -> Array:
     """Integrate one scan into one particle's grid ``(H, W)`` (see module docstring).
 
     Args:
         grid: ``(H, W)`` int8 quantised log-odds.
-        sensor_pose: ``(3,)`` pose of the laser (robot pose ⊕ laser offset).
-        lengths, hits: from :func:`~jaxslam.grid.rays.beam_lengths`.
-        angles: ``(B,)`` beam angles in the laser frame.
-        layout: from :func:`~jaxslam.grid.rays.beam_layout` (same scan).
-        spec: static geometry.
+        free_cells, hit_cells: flat indices of the scan's free and hit cells, from
+            :func:`~jaxslam.grid.rays.ray_cells` (the sentinel ``H * W`` skips a slot).
         l_free, l_occ, l_max: log-odds steps (traced, rounded to integers).
     """
-    free_idx, hit_idx = ray_cells(sensor_pose, lengths, hits, angles, layout, spec)
     flat = grid.reshape(-1)
     l_max = jnp.clip(quantise(l_max), 0, 127)
-    flat = _apply(flat, free_idx, quantise(l_free), l_max)
-    flat = _apply(flat, hit_idx, quantise(l_occ), l_max)
+    flat = _apply(flat, free_cells, quantise(l_free), l_max)
+    flat = _apply(flat, hit_cells, quantise(l_occ), l_max)
     return flat.reshape(grid.shape)
 
 
@@ -163,8 +148,8 @@ def update_grids(
 ) -> tuple[Array, Array]:
     """Integrate one scan into dense grids ``(P, H, W)`` at robot ``poses (P, 3)``.
 
-    Same result as ``vmap(update_grid)`` on the laser poses, but the free cells are
-    processed ``chunk_rows`` rows at a time and only as many chunks run as this scan
+    Same result as :func:`update_grid` of each particle's :func:`ray_cells`, but the
+    free cells are processed ``chunk_rows`` rows at a time and only as many chunks run as this scan
     needs (:func:`integrate_rays`), so a short scan does not pay for the
     ``max_points`` budget. The dense reference of the paged maps
     (:func:`update_paged`).

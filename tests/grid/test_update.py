@@ -13,6 +13,7 @@ from jaxslam.grid.update import (
     beam_lengths,
     chunk_cell_coords,
     num_rows,
+    ray_cells,
     required_points,
     scan_rays,
     touched_tiles,
@@ -83,9 +84,9 @@ def test_update_grid_matches_reference_float64(seed):
     lengths, hits = beam_lengths(jnp.asarray(ranges), jnp.asarray(valid), usable)
     max_rows = num_rows(required_points(np.minimum(ranges, usable), valid, SPEC.resolution), len(ranges))
     layout = beam_layout(lengths, jnp.asarray(valid), SPEC.resolution, max_rows)
-    got = jax.jit(update_grid, static_argnames="spec")(
-        jnp.asarray(start), jnp.asarray(sensor), lengths, hits, jnp.asarray(angles), layout, SPEC, -1.0, 3.0, 6.0
-    )
+    free, hit = jax.jit(ray_cells, static_argnames="spec")(jnp.asarray(sensor), lengths, hits, jnp.asarray(angles),
+                                                            layout, SPEC)
+    got = jax.jit(update_grid)(jnp.asarray(start), free, hit, -1.0, 3.0, 6.0)
     assert int(layout.dropped) == 0
     np.testing.assert_array_equal(np.asarray(got), expected)
 
