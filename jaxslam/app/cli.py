@@ -438,8 +438,8 @@ def console_main() -> None:
     """The ``jaxslam`` command: :func:`main`, then a quick exit.
 
     Python's finalization after a run (tearing down some 1200 modules, JAX's compiled
-    programs and XLA's CPU client) took 0.35-0.45 s, a tenth of a warm Intel run's
-    overhead. When :func:`main` returns, every output file has been written and closed,
+    programs and XLA's CPU client) takes a few tenths of a second, a noticeable part of
+    a warm run's overhead. When :func:`main` returns, every output file has been written and closed,
     so the exit handlers (:mod:`atexit`: Rerun's flush, logging) run, the standard
     streams are flushed and the process ends with :func:`os._exit`. With a non-daemon
     thread still alive, or without CPython's ``atexit._run_exitfuncs``, it exits the

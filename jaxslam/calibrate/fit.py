@@ -39,22 +39,19 @@ filters weighing as the filter you will run. A candidate is admissible only if e
 one of those does at least as well as under the start,
 :math:`g_j(\theta) \ge g_j(\theta_0)` for all :math:`j`; the kept iterate is the best
 admissible one. Why both: the mixture filter keeps track at noise levels where the
-gated one already loses it (Victoria Park, the stored iterates of
-``calibration_vp_validated``: at step 12 all five mixture validation filters stay on
-track through scan 3615 and one of five gated ones does not, 1.3 against 14.6-15.1
-nats per scan; the mixture validation alone kept step 12, which lost track on the
-second half), while the gated likelihood alone is biased to small noise (scoring
-with it instead kept iterates with the steering noise at 0.73-0.77 of the truth on
-two of the four simulator runs, against 0.82-1.17 with the mixture).
+gated one already loses it (an innovation that leaves the gate stops counting, so a
+gated filter that loses track does so abruptly, which the mixture's scores do not
+show), while the gated likelihood alone is biased to small noise (the gate shrinks
+with the noise, below).
 
 **Landmark filters** (:func:`calibrate`). The objective is the filter's estimate of
 :math:`\log Z` under the detection/clutter mixture likelihood by default
 (``likelihood="mixture"``, ``Config.likelihood``; see
 :mod:`jaxslam.feature.particle`), not under the paper's gated weights: with the
 gated weights the innovations that leave the (Mahalanobis) gate stop counting, so
-the gradient pulls the measurement noise down (simulator, all four levels fitted from
-3x and 1/3x off, 20 particles: range and bearing end at 0.83-0.95 of the truth under
-the gated weights, 0.96-1.04 under the mixture). The calibrated levels are meant for
+the gradient pulls the measurement noise down (the gate shrinks with the noise, so
+smaller noise leaves out more of the innovations that would count against it;
+``docs/calibration.md``). The calibrated levels are meant for
 either weight: ``jaxslam run --params`` runs the paper's filter with them.
 """
 
@@ -122,9 +119,8 @@ class CalibrationResult:
             (:func:`select_by_validation`, the start itself when no iterate is
             significantly better there), without it the one with the largest training
             objective. Not the last one: the objective has cliffs the gradient cannot
-            see (Victoria Park's first half, 10 particles: +14.1 nats per scan at step
-            11, -3.1 at step 13, never above 0 again, and the step-11 levels lose
-            track on the second half with 100 particles).
+            see (a step can move the levels to where the filter loses track, and the
+            objective does not recover).
         last: the parameters after the last Adam step.
         best_step: the index (into ``trajectory``) of ``after``.
         train_best_step: the step with the largest training objective.

@@ -1,10 +1,10 @@
 """Parsed CARMEN logs kept on disk, so that a second ``jaxslam run`` on a log does not
 parse it again.
 
-Reading Intel (13631 scans) takes 0.7-1.0 s: decompressing, NumPy's text parser, the
-"no return" sentinel search, the odometry checks. A warm ``jaxslam run`` (compiled
-programs from :mod:`jaxslam.runtime.cache`) spends about a quarter of everything besides its
-filter loop there. :func:`load_carmen_cached` keeps the finished
+Reading a log of ten thousand scans takes about a second: decompressing, NumPy's text
+parser, the "no return" sentinel search, the odometry checks. A warm ``jaxslam run``
+(compiled programs from :mod:`jaxslam.runtime.cache`) would spend a large part of
+everything besides its filter loop there. :func:`load_carmen_cached` keeps the finished
 :class:`~jaxslam.datasets.carmen.CarmenLog` in the subfolder ``logs`` of the compilation-cache folder as an uncompressed ``.npz``
 (every array as stored, the other fields as JSON) and loads that in about 20 ms.
 

@@ -352,8 +352,8 @@ def step(
         if len(widths) == 1:
             out, writes = particles_step(state, observation)
         else:
-            # Most scans fill few of the padded observation slots (Victoria Park: 41% at
-            # most 4 of 14, 82% at most 7); such a scan runs on the narrowest width that
+            # Most scans fill few of the padded observation slots (the padded width is the
+            # log's most crowded scan); such a scan runs on the narrowest width that
             # holds its last real observation. Padding slots are masked out everywhere,
             # so the result is the same up to float rounding.
             last = jnp.max(jnp.where(observation.mask, jnp.arange(1, width + 1), 0))

@@ -3,8 +3,8 @@ r"""Loop-closure search: a wide, coarse scan match where the tracking's local ma
 The tracking (:mod:`jaxslam.grid.tracking`) matches every scan by hill climbing from
 the odometry guess, which reaches a few tenths of a metre and a few degrees. Coming
 back to a place mapped long ago after a long loop, the guess can be metres and
-degrees off the old map (MIT Killian: 2.4-4 m and 2-5 deg where the robot turns back
-into the central corridor). The local match then finds little (its score falls from
+degrees off the old map (a few metres and degrees where a long loop returns). The
+local match then finds little (its score falls from
 0.45-0.6 to 0.1-0.25 of the beams), the robot maps a second copy of the place, and
 from then on it matches its own copy. This module searches wide when that happens.
 
@@ -58,9 +58,9 @@ Why a jump bound and confirmation: a single scan's wide match finds aliases (a
 corridor's doors, repeated every few metres, or a stretch along a corridor's axis), and
 without the bound a run that took one went on jumping at the same place, metres every
 few dozen scans. A false closure that passes every test at the candidate still shows
-itself afterwards, which the watch below uses. Three tests at the candidate did not
-separate false closures from right ones on MIT Killian (right and wrong judged by the
-benchmark's relations), so they are off or absent: the conflict test
+itself afterwards, which the watch below uses. Three tests at the candidate do not
+separate false closures from right ones (right and wrong judged by a benchmark's
+relations), so they are off or absent: the conflict test
 (``closure_conflict``, default 0), a margin over the best candidate at least 1 m away,
 and the share of beams in known free space at the candidate. A refused right closure
 leaves the drift in place until the next chance, which may be far.
@@ -100,7 +100,7 @@ waits until the watch has ended (kept or undone); ``closure_nest`` 1 lets it nes
 closure on the scans it had, with a higher bar (0.2) because fewer scans are averaged.
 Only the reported path and keyframe poses move; the filter is unchanged.
 
-**Reach.** ``closure_radius`` is 6 m: the drift met at a loop's return on MIT Killian
+**Reach.** ``closure_radius`` is 6 m: the drift met at a long loop's return
 reaches 4-6 m, and a search that cannot reach the right pose finds an alias instead;
 at 8 m the window holds more aliases than right closures gain. The candidates grow as
 :math:`R^2` (63,000 at 6 m against 29,000 at 4 m), on the scans under the trigger only.
@@ -119,8 +119,9 @@ closure moves the pose, not the map already written: after a large right closure
 map keeps the copy of the place that the drifted scans wrote, and the tracking can
 later slide onto it; the larger the jump, the larger the copy.
 
-``benchmarks/grid_robustness.py`` measures these rules over the robustness suite's logs
-and seeds.
+What the search gives on a log with a long loop, and what it costs: the design notes
+(``docs/design.md``, "The loop-closure search and its watch"), reproduced by
+``benchmarks/grid_robustness.py``.
 
 Cost: one window of :math:`(2(r + R)/\rho)^2` cells (``r`` =
 :data:`SEARCH_REACH`; beams beyond it take no part in the coarse stage), about

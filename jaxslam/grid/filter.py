@@ -95,8 +95,8 @@ def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: Gr
     climb skips every candidate outside it, as the matcher does. Unbounded, the wide
     climbs answer to no motion model and can hand the matcher a start it would never
     have reached itself (a turn of 0.51 rad that the odometry had right, matched as
-    0.16 rad). SRUPF-GM's default (:func:`jaxslam.grid.experiment.coarse_default`),
-    measured over the robustness suite (``benchmarks/grid_robustness.py``).
+    0.16 rad). SRUPF-GM's default (:func:`jaxslam.grid.experiment.coarse_default`;
+    the design notes, ``docs/design.md``, "The coarse stage", have the table).
     """
     if not config.coarse_iterations:
         return pose

@@ -1,6 +1,6 @@
 r"""Laser-corrected odometry: the heading change between consecutive scans from the
 scans themselves, so that keyframe selection and the filters' motion input see
-rotations that the wheel odometry misses (FR079's doorways).
+rotations that the wheel odometry misses (a robot turning in a doorway).
 
 For scans :math:`t-1, t` with wheel odometry :math:`o_{t-1}, o_t` and laser offset
 :math:`l`, the odometry's laser increment is
@@ -27,16 +27,12 @@ poses; every pair is independent, so all pairs are matched at once in chunks
 as ``odom_poses`` (and the counts in ``stats``), for
 :func:`jaxslam.grid.experiment.run_grid_slam` or any other consumer of odometry.
 
-Status: opt-in, not used by ``run_grid_slam``. Measured with
-``benchmarks/grid_robustness.py`` (30 particles, seed 0, shared machine, one run
-each): against GMapping's corrected FR079 poses, the heading increments between
-consecutive scans err by 0.60 deg on average (wheels: 1.07 deg), but single false
-matches reach 20 deg (``min_gain`` 0.02) or 11 deg (0.1). FR079 with GMapping's
-keyframe rule: srupf-gm 3.29 m mean relations error on the wheel odometry, 4.48 m
-with ``min_gain`` 0.02, 1.49 m with 0.1 (every scan as a keyframe: 0.046 m, as noted at
-the former per-log every-scan rule; not re-run here). Intel:
-0.047 m -> 0.042 m (``min_gain`` 0.02). It does not yet replace FR079's
-every-scan keyframe rule (superseded by per-scan tracking, :mod:`jaxslam.grid.tracking`, which matches each scan against the best map instead of the previous scan).
+Status: opt-in, not used by ``run_grid_slam``. A scan matched against the previous
+scan alone errs less than the wheels in heading on average, but a single false match
+(a corridor, a changed scene) can turn the increment by tens of degrees, which no
+later scan takes back. Per-scan tracking (:mod:`jaxslam.grid.tracking`) addresses the
+same missed rotations by matching each scan against the best particle's map instead
+of the previous scan.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ A grid is an ``int8`` array ``(height, width)`` of quantised log-odds
 natural log-odds per step), clamped to ``[-l_max, l_max]`` (``l_max <= 127``). The
 filters hold one grid per particle, ``(particles, height, width)``.
 
-Memory: one byte per cell. The Intel lab at 5 cm in a 45 m x 45 m box is
+Memory: one byte per cell. A building floor at 5 cm in a 45 m x 45 m box is
 900 x 900 = 0.81 MB per particle, 810 MB for 1000 particles (GMapping's
 ``PointAccumulator`` uses 32 bytes per cell). ``int8`` keeps enough levels for the
 usual inverse sensor model (e.g. +4 per hit, -1 per pass-through, clamp at 100) and

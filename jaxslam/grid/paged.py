@@ -41,9 +41,8 @@ corner moves so that this box sits in the middle and the entries move with it (a
 host copy of the tables, no recompilation, the same cells). Only when it does not
 fit does the table grow (to that box with the margin, and by at least half its size
 in each dimension that is too small; one recompilation). The starting table covers the odometry box, which on
-a log with heading drift can lie far from where the robot really goes (MIT Killian:
-x -630..30 m, y -490..90 m by odometry, -60..210 m and -25..220 m corrected): moving
-it costs nothing where growing it twice cost two compilations of the filter.
+a log with heading drift can lie far from where the robot really goes (hundreds of
+metres off on a long log): moving it costs nothing where growing it twice cost two compilations of the filter.
 
 Cost: a write touches only the tiles under the scan; resampling copies page tables
 (``P x TY x TX`` int32) and no cells; memory is ``S x T^2`` bytes for the pool, so it
@@ -209,19 +208,14 @@ def reader(pool: Array, table: Array, corner: Array, layout: PagedLayout):
     ends, and a tile's table coordinates are clamped to them as unsigned integers (a
     tile left of or below the table wraps to a large one): every tile outside the table
     reads slot 0 through two minimums, without comparisons or selects per cell. The
-    cells read are those of the plain rule (module docstring); ten scores of 6 poses x
-    180 beams through the 3 x 3 window, in a loop (Intel's map after 100 keyframes, one
-    core), took 410 us against 590 us with the four comparisons and two selects of a
-    bounds test. The padded table is indexed by (row, column), not through a flat
+    cells read are those of the plain rule (module docstring), faster than with the four
+    comparisons and two selects per cell of a bounds test. The padded table is indexed by (row, column), not through a flat
     index: a score kernel outside a loop otherwise reads it through a reshape that
-    XLA fuses into the kernel, as a division of each flat index by the table's width
-    (the curvature's eight poses of 30 particles took 1.15 ms a keyframe that way,
-    0.81 ms now; the climbs', inside their loop, are as fast either way). The pool is
-    held flat in :class:`PagedMaps` for the same reason: a ``(slot, cell)`` pool
-    flattened here was fused into the kernels outside loops as index arithmetic (the
-    curvature's kernel 0.81 -> 0.59 ms a keyframe, the particles' first score 182 ->
-    133 us, with the pool flat), and indexed by ``(slot, cell)`` the climbs' kernels
-    took 17 % longer. Any shape of ``pool`` is read as its flat cells."""
+    XLA fuses into the kernel, as a division of each flat index by the table's width,
+    slower for the kernels outside loops (those inside the climbs' loops are as fast
+    either way). The pool is held flat in :class:`PagedMaps` for the same reason: a
+    ``(slot, cell)`` pool flattened here was fused into the kernels outside loops as
+    index arithmetic, and indexed by ``(slot, cell)`` the climbs' kernels are slower. Any shape of ``pool`` is read as its flat cells."""
     width, height = layout.table_width, layout.table_height
     padded = jnp.pad(table.reshape(height, width), ((0, 1), (0, 1)))
     cells = pool.reshape(-1)

@@ -1,11 +1,9 @@
 r"""How far to use the laser: the usable range chosen from the log's own readings.
 
-Indoors almost every reading ends within 20 m (Intel 0.2 % beyond, FR079 0.4 %, MIT
-Killian 1.3 %), and there the default :func:`jaxslam.grid.types.default_params`
-range of 20 m for both the map and the matcher is what the robustness suite was
-tuned and measured with. Outdoors, or in large halls, a fifth or more of the
-readings lie beyond it (the Freiburg campus 22-30 %, the Freiburg clinic 24 %, MRPT's
-UAL log 28 %): cropped at 20 m, a scan keeps a sparse near field that no longer pins
+Indoors almost every reading ends within 20 m (a percent or less beyond), and there
+the default :func:`jaxslam.grid.types.default_params` range of 20 m for both the map
+and the matcher is the filter's design point. Outdoors, or in large halls, a fifth or
+more of the readings lie beyond it: cropped at 20 m, a scan keeps a sparse near field that no longer pins
 the pose, and the map bends where GMapping, with its 80 m, keeps it straight.
 
 The rule, with :math:`f` the fraction of valid readings beyond ``NEAR_RANGE``:
@@ -18,14 +16,12 @@ The rule, with :math:`f` the fraction of valid readings beyond ``NEAR_RANGE``:
 
 Why not 80 m everywhere: a log with few far readings gains nothing from them and
 loses to chance; on indoor logs the far field, at full weight or at a discount
-(``score_range`` 20 m, :func:`jaxslam.grid.filter.beam_weights`), made the worst
-seeds fail and the loop slower. Why no discount where the far field is used: on the
-perturbed campus the full weight does better in the mean and on most seeds.
-``benchmarks/grid_robustness.py`` (``--variant``) measures both. Why 10 %: the logs
-measured lie either at or below 4 % (indoor: Intel, FR079, Killian, CSAIL, Orebro, FHW, Infinite Corridor,
-Seattle, Belgioioso, Edmonton, Freiburg 101) or at or above 12 % (Acapulco, MRPT's
-Sena, the Freiburg clinic, MRPT's UAL, the campus); the threshold sits in the gap,
-not on any one log.
+(``score_range`` 20 m, :func:`jaxslam.grid.filter.beam_weights`), makes the filter less robust
+and the loop slower. Why no discount where the far field is used: where a fifth of
+the readings are far, they are what pins the pose, at full weight as in GMapping.
+``benchmarks/grid_robustness.py`` (``--variant``) compares both. Why 10 %: logs fall
+in two groups, indoor ones at or below a few percent and outdoor or hall ones at or
+above a tenth; the threshold sits in the gap between them, not on any one log.
 
 The decision is the log's, made once before the run from all its readings, like the
 "no return" detection of :func:`jaxslam.datasets.no_return.detect_no_return`; it is

@@ -6,10 +6,10 @@ sideways, a dropped or repeated message, or a corrected log's path that jumps wh
 GMapping run that made it corrected its particle), the right pose lies beyond that
 reach, the match scores like a scan that fits nowhere, it is refused, and the jump is
 kept: the scan is written where it does not belong, and the next matches, against that
-map, are refused too. The perturbed Freiburg campus has twelve such jumps of 0.5-1.2 m
-sideways in its reference, which its own scans contradict
-(``benchmarks/scan_pair_agreement.py --steps-over 0.5``); at the first, scan 238, the tracking's match scored 0.044 of the beams against
-0.17-0.26 for its neighbours, and the next five were refused too.
+map, are refused too. A corrected log's reference can carry such jumps of 0.5-1.2 m
+sideways that its own scans contradict (``benchmarks/scan_pair_agreement.py
+--steps-over 0.5`` finds them); at such a scan the tracking's match scores a fraction
+of its neighbours' scores, and the next matches are refused too.
 
 **Which increments are jumps.** A wheeled base (differential drive, Ackermann) cannot
 move sideways: over one increment :math:`u = (u_x, u_y, u_\theta)` it drives an arc,
@@ -17,15 +17,11 @@ which moves it :math:`u_x \tan(u_\theta / 2)` sideways, and its *slip*
 
 .. math:: \sigma(u) = |u_y - u_x \tan(u_\theta / 2)|
 
-(:func:`slip`) is zero up to the odometry's rounding: at most 0.005 m over Intel's 13,630
-increments and MIT Killian's 17,479, 0.012 m on FR079, 0.02 m on the Freiburg clinic.
-An increment that slips more than :data:`RECOVER_SLIP` (0.25 m) and more than
-:data:`RECOVER_SLIP_SHARE` (0.3) of its length did not come from the wheels' motion
-(:func:`jumped`; the share keeps out long steps whose turn was not one arc, such as the
-perturbed Orebro's 2-3 m steps turning 20-30 deg, whose slip reaches 0.2-0.3 m): the
-perturbed campus has 22-24 of them (its twelve reference jumps and their neighbours),
-the perturbed Orebro 5-9, CSAIL 3-6, Intel 1-2, the infinite corridor 2, FHW 0-1, the
-other perturbed logs none (high noise, seeds 0-4).
+(:func:`slip`) is zero up to the odometry's rounding (a centimetre or two on the raw
+logs of wheeled robots). An increment that slips more than :data:`RECOVER_SLIP`
+(0.25 m) and more than :data:`RECOVER_SLIP_SHARE` (0.3) of its length did not come
+from the wheels' motion (:func:`jumped`; the share keeps out long steps whose turn was
+not one arc, such as steps of 2-3 m turning 20-30 deg, whose slip reaches 0.2-0.3 m).
 
 **The rule.** Where this scan's increment jumped and the tracking's match :math:`(x^*, s)` is refused (:math:`s/n \le` ``track_min_score``), the
 loop-closure search's coarse stage searches around the guess :math:`\hat x` at a small
@@ -42,37 +38,22 @@ correction (:func:`jaxslam.grid.tracking.constrained_pose`) is taken from :math:
 itself rather than from the guess. A scan that fits nowhere scores under the bar
 everywhere and stays refused: the odometry is kept, no jump. The search runs only on
 refused scans whose increment jumped (a ``lax.cond``): a log of wheel odometry never
-slips, and runs the same to the last digit with and without it (raw Intel, seed 0,
-checked).
+slips, and runs the same to the last digit with and without it.
 
-Without the slip test (every refused match searched again), measured on this machine
-(``srupf-gm``, 30 particles, seeds 0-4, relations error mean per seed, m):
-the campus improved (0.302 / 0.394 / 0.232 / 1.444 / 0.107 against 0.789 / 0.280 / 0.512 /
-1.664 / 0.319) but the perturbed infinite corridor got worse (0.177 / 0.129 / 0.376 /
-1.131 / 0.140 against a mean of 0.181 and a worst seed of 0.295) and MIT Killian's seed 1
-(0.980 against 0.305): there the first searched scans had plain increments (1 m
-straight ahead, or a turn in place) and were refused for other reasons, a stretch with
-little to match, where a 1.5 m search finds a pose along a corridor that scores well
-and is not the place. The slip test keeps the search to the scans whose odometry
-cannot be right. With the slip test alone (no share of the length), the perturbed
-Orebro got worse (0.200 / 0.075 / 0.136 / 0.095 / 0.074 against 0.138 / 0.075 / 0.137 /
-0.070 / 0.060), through searches at long real steps; with the share it runs as main.
-Alone, over the coarse-to-fine match (:func:`jaxslam.grid.filter.coarse_start`): at scan
-238 every seed takes the scans' step (ten of ten short runs keep their heading within
-2 deg to scan 300, against four of ten without it), but the campus's later revisits,
-where every match scores 0.003-0.04 of the beams, still lose seeds (seed 5: 9.7 m, its
-heading turned 100 deg over scans 1706-1750 by the particles' climbs); elsewhere it
-changes two runs (Orebro seeds 1 and 9, 0.049 -> 0.072 and 0.064 -> 0.061 m).
-With proposals 2.5 times wider (``track_refused_noise_scale``
-0.5 against ``track_noise_scale`` 0.2) after refused matches
-(:func:`jaxslam.grid.tracking.keyframe_noise_scale`): the campus's seeds 0-9 all mapped
-(0.080-0.184 m, mean 0.117, against 0.998 and a worst seed of 2.639 m before, and
-GMapping C++'s 0.452 and 2.420 m; seeds 10-19 0.850 m mean, three of them 1.7-2.1 m),
-and together they are SRUPF-GM's default
-(:func:`jaxslam.grid.experiment.recover_default`; ``benchmarks/grid_robustness.py``).
+Why the slip test: a refused match is mostly a stretch with little to match, where a
+search of a metre and a half finds a pose along a corridor that scores well and is
+not the place; the test keeps the search to the scans whose odometry cannot be right,
+and the share of the length keeps it off long real steps. Why wider proposals after a
+refused match (``track_refused_noise_scale``, 2.5 times ``track_noise_scale``,
+:func:`jaxslam.grid.tracking.keyframe_noise_scale`): the recovery alone puts the scan
+back, but sparse revisits, where every match scores a few percent of the beams, still
+lose particles to the climbs. Together they are SRUPF-GM's default
+(:func:`jaxslam.grid.experiment.recover_default`); the table with and without both is
+in the design notes (``docs/design.md``, "The recovery, and wider proposals after a
+refused match"), reproduced by ``benchmarks/grid_robustness.py``.
 
 Unlike a loop closure it needs no confirmation and no high score (``closure_min_score``
-0.35, which the campus's right matches never reach): its reach is one increment's jump,
+0.35, which right matches in sparse scenes do not reach): its reach is one increment's jump,
 not the drift of a loop.
 """
 
@@ -97,7 +78,7 @@ RECOVER_SLIP_SHARE = 0.3
 their rounding and from a turn that is not one arc)."""
 
 RECOVER_RADIUS = 1.5
-"""The search radius measured (m per axis, ``config.recover_radius``: SRUPF-GM's default;
+"""The search radius (m per axis, ``config.recover_radius``: SRUPF-GM's default;
 0 leaves the recovery off)."""
 
 

@@ -52,10 +52,8 @@ paper). :math:`\nu` keeps the corrector's heading, but its position moves from t
 start only along the directions where the score is curved at the match
 (:func:`jaxslam.grid.tracking.constrained_shift`, the test the per-scan tracking
 uses): in a corridor the hill climb slides along the axis on map noise, by up to its
-reach, and such slides at keyframes were what broke single seeds on Intel. Measured
-(30 particles, defaults otherwise, relations error mean over seeds 0-4): Intel
-0.156 / 0.037 / 0.037 / 0.038 / 0.032 m off, 0.035 / 0.031 / 0.036 / 0.042 / 0.038 m
-on; FR079 0.035-0.038 m either way.
+reach, and a particle that slides at a keyframe builds its map there. Along such an
+axis the proposal's position is kept (``docs/design.md``, "Per-scan tracking").
 """
 
 from __future__ import annotations

@@ -39,82 +39,52 @@ laser-corrected motion, and resets :math:`m, d, r, \tau, k` to 0. One matcher fo
 the whole set, not per particle: between keyframes the particles do not move (their
 poses are keyframe poses) and share :math:`m`.
 
-The second climb is for turns the odometry misses (FR079's doorways: up to 10 deg
-per scan): the hill climb reaches far only while every move improves the score, and a
-miss of 0.1-0.2 rad can leave it in a worse optimum with a score that is still
-trusted. That happened on FR079 with seed 5 (30 particles, ``srupf-gm``): right after a
-keyframe in a doorway turn (scan 4648) the tracked heading fell 9 deg behind in one
-scan, the tracking score dropped from 0.6 to 0.2 and stayed there, and 18-58 deg of
-heading error reached the end of the log (0.47 m mean relations error, 96 relations
-over 0.5 m, worst 11.9 m). The second climb runs only when a turned guess, before any
+The second climb is for turns the odometry misses (a robot turning in a doorway while
+its wheels report little): the hill climb reaches far only while every move improves
+the score, and a miss of 0.1-0.2 rad can leave it in a worse optimum with a score that
+is still trusted. The second climb runs only when a turned guess, before any
 climbing, already beats the converged match: starting every match from the best of
-the three guesses instead fixed that seed but broke Intel seed 3 (0.158 m, worst
-relation 6.4 m), where a turned start that scored better than the plain guess climbed
-to a worse optimum than the plain match would have.
+the three guesses instead lets a turned start that happens to score better than the
+plain guess climb to a worse optimum than the plain match would have.
 
 A match that scores under ``closure_trigger`` may be a place mapped long ago, met
 again beyond the hill climb's reach (after a long loop the guess can be metres and
 degrees off the old map): :mod:`jaxslam.grid.closure` then searches wide around it and
 takes the best pose it finds where that scores clearly better (its module docstring
-has the rule and the MIT Killian case), and takes a closure back where the scans of
-the next metres keep ending in space the old map has seen through. An undone closure
-moves the pose back whatever the match there scores (it is not refused like an
-untrusted match below).
+has the rule), and takes a closure back where the scans of the next metres keep
+ending in space the old map has seen through. An undone closure moves the pose back
+whatever the match there scores (it is not refused like an untrusted match below).
 
 A match that is not trusted keeps the odometry: the tracking falls back instead of
 jumping. Before that, with ``config.recover_radius`` (SRUPF-GM's default; 0: off), a
 refused match is searched again around the guess by :mod:`jaxslam.grid.recovery`, for
-an odometry that jumped (its module docstring has the rule and the measurements);
-where that finds a trusted, clearly better pose, it is taken. Untrusted is a score
-under ``track_min_score`` (a featureless or changed scene, a scan that does not
-overlap the map, a map of a single scan). The score is the mean occupancy at the beam
-end points, and a wall seen once is half occupied,
-so where the scans are far apart (a metre on the GMapping-corrected logs) even a
-right match scores 0.1-0.3: with the former threshold of 0.3, perturbed Edmonton
-was tracked at 7% of its scans and SRUPF-GM followed its odometry's heading drift
-(0.21-0.54 m over seeds); at 0.1 it scores 0.08-0.11 m (GMapping C++ 0.13 m). A trusted match
-corrects the heading, and the position only along the directions where the score is
-curved (:func:`constrained_shift`, eigenvalues of the score's Hessian at the match
-at least ``track_min_curvature``): in a corridor the score is flat along its axis, and
-a hill climb there slides by up to its whole reach (``match_iterations`` steps of
-lstep) on map noise, so along that axis the odometry is kept. The heading is not
-bounded: a missed turn (FR079: 25 deg in 0.6 s) is the case tracking is for. With
+an odometry that jumped (its module docstring has the rule); where that finds a
+trusted, clearly better pose, it is taken. Untrusted is a score under
+``track_min_score`` (a featureless or changed scene, a scan that does not overlap the
+map, a map of a single scan). The score is the mean occupancy at the beam end points,
+and a wall seen once is half occupied, so where the scans are far apart (a metre
+apart) even a right match scores 0.1-0.3: the threshold (0.1) sits below that, or
+the tracking would refuse most scans of such a log and the filter would follow its
+odometry's drift. A trusted match corrects the heading, and the position only along
+the directions where the score is curved (:func:`constrained_shift`, eigenvalues of
+the score's Hessian at the match at least ``track_min_curvature``): in a corridor the
+score is flat along its axis, and a hill climb there slides by up to its whole reach
+(``match_iterations`` steps of lstep) on map noise, so along that axis the odometry
+is kept. SRUPF-GM's keyframe correction moves the position only along constrained
+directions too (``config.constrain_matches``), for the same slides one level up. The
+heading is not bounded: a missed turn is the case tracking is for. With
 ``config.tracking = False`` no scan is matched between keyframes and the keyframes
 are GMapping's own (odometry) keyframes.
 
-Measured (30 particles, srupf-gm, whole logs, one seed per cell, relations error
-mean; a shared, loaded 2-core machine):
-
-=================================  ==========  ==========  ==========
-variant                            Intel s0    Intel s1    FR079 s0
-=================================  ==========  ==========  ==========
-no tracking (GMapping's rule)      0.044 m                 3.3-3.6 m
-tracking, position unconstrained   0.117 m     0.426 m     0.037 m
-tracking, heading only             --          0.038 m     1.76 m
-tracking, default (curvature 20)   0.156 m     0.037 m     0.56 m
-+ reversing repair (FR079)                                 0.036 m
-+ constrained keyframe correction  0.035 m     0.031 m     0.038 m
-+ proposal noise x0.2, min scores  0.025 m     0.026 m     0.034 m
-=================================  ==========  ==========  ==========
-
-The last three rows are today's defaults: the CARMEN reader repairs FR079's odometry,
-which loses the sign of reversing (:mod:`jaxslam.datasets.odometry_repair`; that,
-not missed turns, was what broke FR079), and SRUPF-GM's keyframe correction moves
-the position only along constrained directions too (``config.constrain_matches``).
-
-The unconstrained variant's Intel failures were single-scan slides of 0.4 m in
-corridors (removed by the curvature test). Intel seed 0's remaining failure was the
-same slide one level up: corrections of 0.4-0.7 m along a corridor by the keyframe
-step's own matcher late in the run, removed by the same test there
-(``constrain_matches``). The last row: with tracking the keyframe control is
-laser-corrected motion, so the proposals spread only ``track_noise_scale`` = 0.2 of
-the odometry model's motion noise (:func:`tracked_noise_scale`; at a metre per scan
-GMapping's 0.2 rad/m heading noise scattered particles beyond their hill climbs, and
-a lost particle scores well against its own map), a match counts from any score
-(``min_score`` 0, GMapping's ``minimumScore``) and tracking trusts a match from 0.1
-(rather than 0.3). ``benchmarks/grid_robustness.py`` runs every log over five seeds.
-After a refused match SRUPF-GM's proposals are wider, ``track_refused_noise_scale``
-(:func:`keyframe_noise_scale`).
+With tracking the keyframe control is laser-corrected motion, so the proposals spread
+only ``track_noise_scale`` = 0.2 of the odometry model's motion noise
+(:func:`tracked_noise_scale`): at a metre per scan GMapping's 0.2 rad/m heading noise
+scatters particles beyond their hill climbs, and a lost particle scores well against
+its own map. A match counts from any score (``min_score`` 0, GMapping's
+``minimumScore``). After a refused match SRUPF-GM's proposals are wider,
+``track_refused_noise_scale`` (:func:`keyframe_noise_scale`). What tracking changes
+and costs on real logs: the documentation's design notes (``docs/design.md``,
+"Per-scan tracking"), reproduced by ``benchmarks/grid_robustness.py``.
 
 The pose of every scan is the filter's own: the best lineage's keyframe pose composed
 with the tracked motion :math:`m_t` of the scan (``Info.motion``), see
@@ -165,7 +135,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
         return make_score_fn(read, local_points, mask, params.laser_offset, config.layout,
                              model._replace(sigma=sigma), config.score_kernel, config.free_check)(poses)
 
-    # A turn the odometry missed (FR079's doorways: up to 10 deg per scan) can lie beyond
+    # A turn the odometry missed (a doorway turn: up to 10 deg per scan) can lie beyond
     # the hill climb's reach. If the guess turned by +-track_turn already scores above
     # the converged match, that match is stuck: climb again from the better turned start.
     turns = jnp.asarray([1.0, -1.0], dtype) * jnp.asarray(params.track_turn, dtype)
@@ -315,16 +285,10 @@ def tracked_noise_scale(params: GridSlamParams, config: GridSlamConfig) -> Array
     that lands in a wrong optimum builds its map there and, scored against its own
     map, is hardly worse than the others. So with tracking the motion-proportional
     noise of every keyframe is scaled by :math:`\kappa`, also where matches were
-    refused. Measured (30 particles, the GMapping-style filter, relations error mean,
-    seeds 0-2): perturbed Intel (low odometry noise) 1.08 /
-    1.94 / 0.78 m at :math:`\kappa = 1`, 0.047 / 0.053 / 0.043 m at 0.2; perturbed
-    Edmonton (high) 0.80 / 1.05 / 1.10 m against 0.112 / 0.096 / 0.119 m; raw Intel
-    0.030 m against 0.026 / 0.027 m. Scaling only the scans whose match was trusted
-    (full noise after a refused match) was worse on Edmonton (0.42-1.19 m): refused
-    matches are mostly sparse scenes, where wide proposals lose particles.
-    In between (``srupf-gm``, seeds 0-4, worst seed): :math:`\kappa` = 0.6 gave csail-high 0.090 against 0.115 m and Intel
-    0.035 against 0.045 m, but MIT Killian 3.69 against 1.50 m; 0.4 failed an Intel
-    seed (0.378 m).
+    refused: refused matches are mostly sparse scenes, where wide proposals lose
+    particles. The default 0.2 is a fifth of the odometry's noise: large enough
+    values bring the scatter back, and the value is not a sharp optimum
+    (``docs/design.md``, "Per-scan tracking").
     """
     if not config.tracking:
         return jnp.ones((), params.track_noise_scale.dtype)
@@ -341,18 +305,15 @@ def keyframe_noise_scale(params: GridSlamParams, config: GridSlamConfig, refused
     A trusted match makes the keyframe's control a laser measurement; a refused one
     leaves the odometry's increment in it, with the odometry's error, and
     :math:`\kappa` = 0.2 draws proposals a fifth as wide as that error. Where the
-    odometry jumped (the corrected campus log's sideways steps, scan 238: 1 m in the
-    reference, 0.09 m between the scans) the place where the scan fits lay 24 standard
-    deviations from the proposal and the bounded matcher turned the heading instead. The campus's later revisits, where every match
-    scores 0.003-0.08 of the beams, lost seeds the same way.
-
-    Measured with the recovery from odometry jumps (``config.recover_radius`` 1.5 m;
-    ``srupf-gm``, 30 particles, perturbed campus, ten seeds): relations error mean over the seeds 0.117 m, worst seed 0.184 m at 0.5,
-    against 1.046 / 4.890 m at 1 (the odometry's full noise: in sparse stretches, whose
-    scans cannot pull a particle back, keyframes 9-12 deg off) and 0.998 / 2.639 m
-    without either (GMapping C++: 0.452 / 2.420 m). Seeds 10-19 at 0.5 were less lucky
-    (0.850 m mean, three seeds of 1.7-2.1 m), and at 0.35 and 0.7 one or two of seeds
-    0-4 are lost: a scale between the two ends, not a sharp optimum.
+    odometry jumped (a sideways step of a metre that the scans do not show) the place
+    where the scan fits can lie many standard deviations from such a proposal, and the
+    bounded matcher turns the heading instead; sparse revisits, where every match
+    scores a few percent of the beams, lose particles the same way. The odometry's
+    full noise (1) is too wide the other way: in sparse stretches, whose scans cannot
+    pull a particle back, keyframes land degrees off. Half the noise lies between the
+    two ends; it is not a sharp optimum. With the recovery from odometry jumps
+    (``config.recover_radius``) it is the SRUPF-GM default; the table is in
+    ``docs/design.md`` ("The recovery, and wider proposals after a refused match").
     """
     kappa = tracked_noise_scale(params, config)
     if not config.tracking:

@@ -55,10 +55,9 @@ def judge_at_end(memory: np.ndarray, params) -> np.ndarray:
     .. math:: n \ge 2, \qquad \Sigma > u_{end}\, n
 
     (``closure_undo_end``, 1: never). The bar is above ``closure_undo`` because fewer
-    scans are averaged: over the robustness suite's runs (201 closures that
-    their watch kept, 50 it undid), the share over the first 3 / 10 / 20 watched scans
-    exceeded 0.11 after 24 % / 17 % / 14 % of the kept closures, 0.2 after 4 % / 2 % /
-    1 %; after 42 % / 56 % / 56 % of the undone ones.
+    scans are averaged: over a few watched scans the share of a right closure
+    often exceeds ``closure_undo`` by chance, and rarely 0.2, while most closures that
+    a full watch undoes exceed it.
 
     Args:
         memory: ``(MEMORY,)`` the final state's ``closure_memory``.

@@ -103,8 +103,7 @@ def integrate_rays(flat: Array, rays: ScanRays, index_of, l_free, l_occ, l_max) 
     # block. Indices are unsigned (never negative; the skip index is ``flat.shape[0]``
     # or more): no wrap-around of negative indices per cell. The old values are
     # gathered through the indices just stored, so the cells' coordinates are computed
-    # once, not again inside the gather's kernel (Intel, 30 particles: the read pass
-    # 145 -> 116 us a chunk).
+    # once, not again inside the gather's kernel.
     def read_body(i, carry):
         flat, olds, idxs = carry
         idxs = jax.lax.dynamic_update_index_in_dim(idxs, index_of(*chunk_cell_coords(rays, i)).astype(jnp.uint32), i, 0)

@@ -12,11 +12,8 @@ options:
   its fused kernels in two ways: the newer MLIR "fusion emitters" (XLA's default in
   jax 0.10) or the older LLVM loop emitters. The grid filters' steps are mostly
   gathers through page tables inside ``while`` loops (scan matching), and there the
-  older emitters win on both counts. Measured on the whole Intel log, 30 particles,
-  one process per variant pinned to one core of a 2-core Xeon VM, compilation cache
-  off (the README has the run): ``srupf-gm`` filter loop 38.8 s -> 21.2 s and XLA
-  compilation 17.9 s -> 10.0 s, the GMapping-style filter 34.1 s -> 20.7 s and
-  13.1 s -> 8.6 s, with the trajectory and the map bit for bit the same.
+  older emitters compile and run faster, with the trajectory and the map bit for bit
+  the same (``docs/design.md``, "The fixed XLA code split", has the numbers).
 
 * ``xla_cpu_parallel_codegen_split_count = 8``: the same run whatever the thread
   count or CPU set. XLA splits the generated LLVM module into parts that
@@ -24,27 +21,18 @@ options:
   code, and so the rounding, of some loops. Left to XLA, the split follows the
   thread pool: with one thread (``--threads 1``, or a process pinned to one core
   with ``taskset``) the runs are those of an unsplit module, with more those of 32
-  parts (bit for bit, below). So one seed gave two runs, and the
-  filters' chaotic loop closures made them two different maps: MIT Killian,
-  ``srupf-gm``, 30 particles, seed 0, relations error 0.191 m pinned to one core and
-  1.080 m as ``jaxslam run`` ran it on two threads. A fixed split removes the
-  dependence. Measured (Intel, 30 particles, 150 keyframes, compilation cache off,
-  the 2-core EPYC VM): 1, 2, 8 and 16 parts all give the one-thread program's run
-  bit for bit, with one, two or four threads and pinned; 32 gives the other.
-  Compilation (5 programs, two threads): 15-16 s with 1 or 2 parts, 11.5-12.5 s with
-  8 or 16, 12-13 s with XLA's 32; the filter loop is the same within this machine's
-  noise. Killian's two-thread ``jaxslam run``, seed 0, now gives 0.191 m, the
-  pinned run's number to the last digit. (The landmark filters' programs, with XLA's
-  defaults, gave the same bits on one and two threads: Victoria Park, ERB, 1000
-  particles, 600 scans.) Code for another CPU model (other vector
-  instructions) can still differ, so runs are reproducible on one kind of machine,
-  not bit for bit across machines.
+  parts. So one seed could give two runs, and the filters' chaotic loop closures
+  made them two different maps. A fixed split removes the dependence: 1, 2, 8 and
+  16 parts all give the one-thread program's run bit for bit, with one, two or four
+  threads and pinned (32 gives the other), and 8 parts compile faster than 1 or 2.
+  ``tests/test_compiler.py`` checks the bits. Code for another CPU model (other
+  vector instructions) can still differ, so runs are reproducible on one kind of
+  machine, not bit for bit across machines.
 
-The landmark filters keep XLA's defaults: with this option they compile about 25 %
-faster but do not run faster (Victoria Park, ERB, 100 particles: 4.6 s either way
-for 2000 steps), and their results change in float rounding, which the chaotic
-association turns into a different run (GPS error 2.2 / 5.1 / 4.5 m for seeds 0-2
-with XLA's defaults, 7.5 / 2.9 / 4.6 m with the option).
+The landmark filters keep XLA's defaults: with this option they compile faster but do
+not run faster, and their results change in float rounding, which the chaotic data
+association turns into a different run; their programs with XLA's defaults give the
+same bits on one and two threads.
 
 The option is read by the CPU backend only. ``JAXSLAM_XLA_OPTIONS=xla`` in the
 environment compiles with XLA's own defaults instead (read when a program is first
@@ -122,22 +110,16 @@ def auto_threads(algorithm: str, particles: int) -> int | None:
     :data:`SINGLE_THREAD_MAX_PARTICLES` (the landmark filters up to 300 particles),
     else ``None`` (XLA's default: every core).
 
-    At these sizes a landmark filter's step is many small kernels (Victoria
-    Park, ERB: about a thousand per scan, each over a few hundred to a few thousand numbers),
-    and XLA's CPU runtime spreads independent kernels and the iterations of each over
-    its threads; the hand-overs cost more than the second core gives. Measured on a
-    2-core Xeon VM, alternating one thread with XLA's default in one sitting, the same
-    results bit for bit (the README has the table): Victoria Park ERB, 2000 scans, 100
-    particles 4.7-5.4 s against 5.3-6.6 s (and half the CPU time), 300 particles
-    7.9-8.7 s against 7.6-8.3 s, 1000 particles (500 scans) 13.5 s against 8.5-9.1 s;
-    RB at 100 particles, whole log, the same either way.
+    At these sizes a landmark filter's step is many small kernels (about a thousand
+    per scan, each over a few hundred to a few thousand numbers), and XLA's CPU
+    runtime spreads independent kernels and the iterations of each over its threads;
+    the hand-overs cost more than a second core gives, and the results are the same
+    bit for bit (``docs/reproducibility.md``, "Threads"). From about a thousand
+    particles the kernels are large enough for more threads to pay.
 
     The grid filters keep every core: their kernels depend on the log as much as on
-    the particle count. ``srupf-gm`` at 30 particles was faster on one thread on Intel
-    (filter loop 20.6-22.5 s against 21.8-26.6 s) but slower on MIT Killian, whose 50 m
-    rays and larger maps make bigger kernels (51.3-52.2 s against 40.6-44.7 s); the
-    GMapping-style filter was slower on one thread on Intel (20.5-23.3 s against
-    15.7-19.0 s).
+    the particle count (long rays and large maps make bigger kernels), so no particle
+    count picks the faster setting for every log.
     """
     limit = SINGLE_THREAD_MAX_PARTICLES.get(algorithm)
     return 1 if limit is not None and particles <= limit else None
@@ -186,9 +168,9 @@ def compile_environment() -> str:
     CPUs this process may use (:func:`cpus_allowed`) and XLA's thread pool
     (:func:`thread_pool`). Either can change the compiled program (XLA splits the
     generated code by the parallelism it sees) and so, with the loop emitters, its
-    rounding: under XLA's own split, Intel, ``srupf-gm``, 30 particles, 150 keyframes
-    gave one run compiled with one thread (``--threads 1``, or pinned with ``taskset -c
-    0``) and another with two. jaxslam's grid programs now fix the split
+    rounding: under XLA's own split, a grid run compiled with one thread (``--threads
+    1``, or pinned with ``taskset -c 0``) can differ from one compiled with two.
+    jaxslam's grid programs fix the split
     (:data:`OPTIONS`), but programs compiled with other options (the landmark filters,
     a user's own) do not. JAX's cache key includes neither, so :mod:`jaxslam.runtime.cache`
     adds this string to it."""

@@ -2,8 +2,8 @@
 
 JAX's persistent compilation cache (:mod:`jaxslam.runtime.cache`) saves XLA's work, but each
 process still traces the filter's step in Python and lowers it to StableHLO before it
-can look the program up: seconds for the grid filters (about 5 s of the 6 s of
-``compile_s`` of a warm Intel run on a loaded 2-core machine), paid by every run. This
+can look the program up: seconds for the grid filters (most of a warm run's
+``compile_s``), paid by every run. This
 module stores the lowered chunk runner (a :class:`jax.export.Exported`, pickled) in the
 subfolder ``exports`` of the compilation-cache folder; a later process loads it, wraps
 it in ``jax.jit`` (the carry donated as before) and gets XLA's executable from the
