@@ -60,7 +60,8 @@ import numpy as np  # noqa: E402
 from _common import RESULTS, machine_info, print_table, write_json  # noqa: E402
 
 from jaxslam.calibrate import landmark as L  # noqa: E402
-from jaxslam.calibrate.fit import calibrate, validation_steps, value_and_grads  # noqa: E402
+from jaxslam.calibrate.fit import validation_steps  # noqa: E402
+from jaxslam.calibrate.landmark import calibrate, value_and_grads  # noqa: E402
 from jaxslam.feature.experiment import params_for  # noqa: E402
 from jaxslam.feature.params import Config  # noqa: E402
 
@@ -202,7 +203,8 @@ def _revalidate(seq, trajectory, fit: int, window: int, likelihood: str, steps: 
     again on its held-out scans ``fit:window``, scored by ``likelihood`` filters and
     guarded by ``guard_likelihood`` filters (None: no guard), with the keys
     ``calibrate(seed=seed)`` used: the same computation as ``calibrate()``'s."""
-    from jaxslam.calibrate.fit import validate, validation_score
+    from jaxslam.calibrate.fit import validate
+    from jaxslam.calibrate.landmark import validation_score
     from jaxslam.feature.experiment import ALGORITHMS
 
     cfg = Config(num_particles=particles, proposal=ALGORITHMS["erb-upf"], likelihood=likelihood, **(config or {}))

@@ -108,7 +108,7 @@ def test_run_ends_with_a_short_report_and_prints_the_summary_with_json(tmp_path,
 
 
 def test_report_of_relations_and_gps_scores_names_how_many_were_scored(tmp_path):
-    from jaxslam.app.runs import report
+    from jaxslam.app.report import report
 
     (tmp_path / "summary.json").write_text("{}")
     common = {"particles": 30, "seed": 1, "resamplings": 4, "wall_s": 2.0, "compile_s": 9.5, "total_s": 12.25,

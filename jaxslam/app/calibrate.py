@@ -64,9 +64,10 @@ def run(args) -> dict[str, Any]:
     import jax
     import jax.numpy as jnp
 
-    from jaxslam.calibrate.fit import calibrate
+    from jaxslam.calibrate.landmark import calibrate
     from jaxslam.app.outputs import write_json
-    from jaxslam.app.runs import RunError, resolve_dataset
+    from jaxslam.app.data import resolve_dataset
+    from jaxslam.app.errors import RunError
 
     if args.algorithm not in LANDMARK + GRID:
         raise RunError(f"calibrate supports the landmark filters ({', '.join(LANDMARK)}) and {', '.join(GRID)}; "
@@ -95,9 +96,9 @@ def run(args) -> dict[str, Any]:
                                **options)
         else:
             from jaxslam.calibrate.grid import calibrate_grid
-            from jaxslam.app.runs import _load_log
+            from jaxslam.app.data import load_log
 
-            log, _ = _load_log(info, path, args.seed, None, None)
+            log, _ = load_log(info, path, args.seed, None, None)
             out.mkdir(parents=True, exist_ok=True)
             result = calibrate_grid(log, samples=args.samples, **options)
     name = info.name if info is not None else str(path)
@@ -158,7 +159,7 @@ def load_params_file(path: str | Path) -> dict[str, float]:
     lists for a vector parameter such as SRUPF-GM's ``match_noise``), for ``jaxslam
     run --params``; a clear error for a missing or malformed file."""
     from jaxslam.datasets.paths import DataFormatError
-    from jaxslam.app.runs import RunError
+    from jaxslam.app.errors import RunError
 
     path = Path(path)
     if not path.exists():

@@ -2,6 +2,11 @@
 
 Bad arguments exit with status 2 and a message that says what is wrong; a missing
 dataset names the dataset, every place searched and how to set ``JAXSLAM_DATA``.
+
+One module of about 450 lines: the parser of every subcommand and the thin adapters
+from parsed arguments to the functions that do the work (:mod:`jaxslam.app.runs`,
+:mod:`jaxslam.app.report`, :mod:`jaxslam.app.localize`, :mod:`jaxslam.app.calibrate`);
+the options of all subcommands are kept in one place so that they stay consistent.
 """
 
 from __future__ import annotations
@@ -270,7 +275,7 @@ def cmd_run(args) -> int:
 
         print(json.dumps(summary, indent=2, default=json_default))
     else:
-        from jaxslam.app.runs import report
+        from jaxslam.app.report import report
 
         print(report(summary, args.resume if args.resume is not None else args.out))
     return 0
@@ -280,14 +285,14 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
     """``jaxslam run``: the parsed arguments as a call of :func:`jaxslam.app.runs.run`
     (``--list-params`` prints the parameters instead; ``--resume`` repeats the
     arguments saved in the folder's ``run.json``)."""
-    from jaxslam.app import runs
+    from jaxslam.app import data, runs
     from jaxslam.datasets.paths import DataFormatError
     from jaxslam.datasets.registry import DEFAULT_ALGORITHM
 
     if args.list_params:
         from jaxslam.app.params import parameter_table
 
-        algorithm = args.algorithm or DEFAULT_ALGORITHM[runs.resolve_dataset(args.dataset, None)[2]]
+        algorithm = args.algorithm or DEFAULT_ALGORITHM[data.resolve_dataset(args.dataset, None)[2]]
         print(parameter_table(algorithm))
         return None
     if args.resume is not None:
@@ -315,8 +320,8 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
 
         from_file = load_params_file(args.params)
     # each value checked where it was given, before anything is loaded or compiled
-    algorithm = args.algorithm or DEFAULT_ALGORITHM[runs.resolve_dataset(args.dataset, None)[2]]
-    if runs.ALGORITHMS[algorithm] == runs.resolve_dataset(args.dataset, algorithm)[2]:
+    algorithm = args.algorithm or DEFAULT_ALGORITHM[data.resolve_dataset(args.dataset, None)[2]]
+    if data.kind_of(algorithm) == data.resolve_dataset(args.dataset, algorithm)[2]:
         runs.check_overrides(algorithm, from_file, origin=f"--params {str(args.params)!r}:")
         runs.check_overrides(algorithm, overrides, origin="--set")
     overrides = {**from_file, **overrides}
@@ -354,9 +359,9 @@ def saved_arguments(path: Path, saved) -> dict[str, Any]:
 
 
 def cmd_evaluate(args) -> int:
-    from jaxslam.app import runs
+    from jaxslam.app.report import evaluate
 
-    scores = runs.evaluate(args.trajectory, relations=args.relations, gps=args.gps)
+    scores = evaluate(args.trajectory, relations=args.relations, gps=args.gps)
     from jaxslam.app.outputs import json_default
 
     text = json.dumps(scores, indent=2, default=json_default)
@@ -422,7 +427,7 @@ COMMANDS = {"calibrate": cmd_calibrate, "localize": cmd_localize, "run": cmd_run
 
 def main(argv: list[str] | None = None) -> int:
     from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
-    from jaxslam.app.runs import RunError
+    from jaxslam.app.errors import RunError
 
     parser = build_parser()
     args = parser.parse_args(argv)

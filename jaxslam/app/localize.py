@@ -93,7 +93,7 @@ def _param_names() -> list[str]:
 
 
 def _overrides(items: list[str]) -> dict[str, float]:
-    from jaxslam.app.runs import RunError
+    from jaxslam.app.errors import RunError
     from jaxslam.localization.monte_carlo import DEFAULTS
 
     values = {}
@@ -115,7 +115,7 @@ def _overrides(items: list[str]) -> dict[str, float]:
 
 
 def _check_pose(option: str, values, positive: bool = False) -> None:
-    from jaxslam.app.runs import RunError
+    from jaxslam.app.errors import RunError
 
     if values is None:
         return
@@ -200,39 +200,40 @@ def plot_localization(grid, trajectory, snapshots, times, title: str = "", conve
 
 def run(args) -> dict[str, Any]:
     """``jaxslam localize`` with parsed arguments; returns the summary."""
-    from jaxslam.app import runs
+    from jaxslam.app import data
+    from jaxslam.app.errors import RunError
     from jaxslam.app.outputs import write_trajectory
     from jaxslam.grid.mapfile import load_map
     from jaxslam.localization.experiment import localize, summary
 
     if args.global_start and args.initial_pose is not None:
-        raise runs.RunError("--global and --initial-pose exclude each other")
+        raise RunError("--global and --initial-pose exclude each other")
     if args.initial_std is not None and args.initial_pose is None:
-        raise runs.RunError("--initial-std needs --initial-pose")
+        raise RunError("--initial-std needs --initial-pose")
     _check_pose("--initial-pose", args.initial_pose)
     _check_pose("--initial-std", args.initial_std, positive=True)
     if args.max_range is not None and not args.max_range > 0:
-        raise runs.RunError(f"--max-range must be positive, got {args.max_range}")
+        raise RunError(f"--max-range must be positive, got {args.max_range}")
     overrides = _overrides(args.overrides)
     grid = load_map(args.map)
-    info, path, kind = runs.resolve_dataset(args.dataset, None)
+    info, path, kind = data.resolve_dataset(args.dataset, None)
     if kind != "laser":
-        raise runs.RunError(f"--dataset {args.dataset!r} is {kind} data; localization needs a laser log")
+        raise RunError(f"--dataset {args.dataset!r} is {kind} data; localization needs a laser log")
     if info is not None and not info.simulated:
         info.paths()
-    bag = runs._bag_options({"scan_topic": args.scan_topic, "odom_topic": args.odom_topic,
+    bag = data.bag_options({"scan_topic": args.scan_topic, "odom_topic": args.odom_topic,
                              "base_frame": args.base_frame, "laser_offset": args.laser_mount}, path)
     loading = time.perf_counter()
-    log, _ = runs._load_log(info, path, args.seed, bag, args.max_range)
+    log, _ = data.load_log(info, path, args.seed, bag, args.max_range)
     load_s = time.perf_counter() - loading
     if np.asarray(log.ranges).shape[0] < 1:
-        raise runs.RunError(f"--dataset {args.dataset!r}: the log has no scans")
+        raise RunError(f"--dataset {args.dataset!r}: the log has no scans")
     pose = None if args.initial_pose is None else np.asarray(args.initial_pose, np.float64)
     std = args.initial_std or (0.1, 0.1, 0.05)
     if pose is not None:
         inside = _free_at(grid, pose)
         if inside is None:
-            raise runs.RunError(f"--initial-pose {list(args.initial_pose)} lies outside the map "
+            raise RunError(f"--initial-pose {list(args.initial_pose)} lies outside the map "
                                 f"({str(grid.source)!r})")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -251,7 +252,7 @@ def run(args) -> dict[str, Any]:
     record["total_s"] = time.perf_counter() - started + load_s
     record = _strict(record)
     if not all(np.isfinite(result.trajectory).ravel()):
-        raise runs.RunError("the estimate is not finite (a bug); no trajectory written")
+        raise RunError("the estimate is not finite (a bug); no trajectory written")
     write_trajectory(out, result.times, result.trajectory,
                      f"jaxslam localize {name} in {grid.source}, {args.particles} particles, seed {args.seed}")
     if not args.no_plots:

@@ -1,19 +1,25 @@
-"""What ``jaxslam run`` / ``evaluate`` do, as functions a script can call.
+"""What ``jaxslam run`` does, as a function a script can call.
 
 ``run(...)`` resolves a dataset (a name in :mod:`jaxslam.datasets.registry`, a path to
-a CARMEN log or a ROS bag, or a built-in simulator), runs the chosen filter, scores it
+a CARMEN log or a ROS bag, or a built-in simulator: :mod:`jaxslam.app.data`), runs the chosen filter, scores it
 as the registry says (:mod:`jaxslam.metrics.scoring`: relations, GPS or ground truth)
 and writes an output folder (:mod:`jaxslam.app.outputs`): ``summary.json`` — what was run
 (algorithm, dataset, particles, seed, steps, ...), timings (``wall_s`` after
 compilation, ``compile_s`` apart), resamplings, scores — ``trajectory.tum``, the map or
 the landmarks, ``arrays.npz`` and the figures. The command line adapts its arguments
-to :func:`run` in :mod:`jaxslam.app.cli`.
+to :func:`run` in :mod:`jaxslam.app.cli`; what a run prints at its end and ``jaxslam
+evaluate`` are :mod:`jaxslam.app.report`.
+
+One module, a little over 400 lines: :func:`run` checks the options of both kinds of
+run against the data (which options apply to laser logs, bags, landmark sequences),
+records them for ``--resume`` and the checkpoint's fingerprint, and dispatches to
+:func:`run_landmark` or :func:`run_grid`; those two are short and share the summary's
+layout with it.
 """
 
 from __future__ import annotations
 
 import contextlib
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -21,55 +27,17 @@ from typing import Any
 import numpy as np
 
 from jaxslam.runtime.compiler import cpus_allowed, set_threads
-from jaxslam.datasets.checks import MAX_ODOMETRY_STEP, check_laser_log
-from jaxslam.datasets.paths import DatasetNotFoundError
-from jaxslam.datasets.registry import ALGORITHMS, DATASETS, DEFAULT_ALGORITHM, DatasetInfo, algorithms, lookup
+from jaxslam.datasets.registry import DEFAULT_ALGORITHM, algorithms
+from jaxslam.app.data import bag_options, is_bag, kind_of, load_checked_log, resolve_dataset
 from jaxslam.app.errors import RunError
 from jaxslam.app.outputs import marked_run, prefetch_plotting, prepare_folder, write_summary, write_with_figures
 
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
 
-def _kind_of(algorithm: str) -> str:
-    return ALGORITHMS[algorithm]
-
-
-CARMEN_SUFFIXES = (".clf", ".log", ".carmen", ".gz")
-"""Names of CARMEN logs (plain or gzipped; any existing file is read as one unless it
-is a ROS bag)."""
-
-FILE_KINDS = (
-    "a CARMEN log file (.clf, .log or .carmen, plain or gzipped as .gz), a ROS 1 bag (.bag) or a ROS 2 bag "
-    "(its folder, with metadata.yaml, or its .db3 or .mcap file)"
-)
-"""The files ``--dataset`` accepts besides the dataset names (:func:`resolve_dataset`)."""
-
-
-def resolve_dataset(dataset: str | None, algorithm: str | None) -> tuple[DatasetInfo | None, Path | None, str]:
-    """``(info, path, kind)`` for a dataset name, a path to a CARMEN log or a ROS bag,
-    or None (the built-in simulator that suits ``algorithm``)."""
-    from jaxslam.datasets.rosbag import ROSBAG_SUFFIXES
-
-    if dataset is None:
-        kind = _kind_of(algorithm) if algorithm else "landmark"
-        return lookup("sim-landmarks" if kind == "landmark" else "sim-laser"), None, kind
-    candidate = Path(dataset).expanduser()
-    if candidate.suffix in CARMEN_SUFFIXES + ROSBAG_SUFFIXES or candidate.exists():
-        if not candidate.exists():
-            what = "ROS bag" if candidate.suffix in ROSBAG_SUFFIXES else "CARMEN log"
-            raise DatasetNotFoundError(f"{what} {str(candidate)!r} does not exist")
-        return None, candidate, "laser"
-    try:
-        info = lookup(dataset)
-    except KeyError:
-        raise RunError(f"unknown dataset {dataset!r}: no such dataset name nor file; --dataset takes a dataset "
-                       f"name ({', '.join(DATASETS)}; `jaxslam datasets` says which are found), {FILE_KINDS}") from None
-    return info, None, info.kind
-
-
 def param_fields(algorithm: str) -> dict[str, Any]:
     """Each ``Params`` field of the algorithm with its default (scalars as floats)."""
-    if _kind_of(algorithm) == "landmark":
+    if kind_of(algorithm) == "landmark":
         from jaxslam.feature.params import Params
 
         defaults = Params()
@@ -156,58 +124,6 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 # --------------------------------------------------------------------------- grid
 
 
-def _load_log(info, path, seed, bag, max_range, mixed_geometry=None):
-    """The laser log of a registry entry, a ROS bag or a CARMEN log path, and how the
-    log cache served it (:mod:`jaxslam.datasets.log_cache`; CARMEN logs only, in the
-    compilation-cache folder when that is on)."""
-    if path is not None and _is_bag(path):
-        from jaxslam.datasets.paths import DataFormatError
-        from jaxslam.datasets.rosbag import load_rosbag
-
-        try:
-            return load_rosbag(path, **(bag or {})), "off"
-        except (DataFormatError, FileNotFoundError):
-            raise
-        except Exception as err:  # noqa: BLE001 - any failure of the bag reader on damaged bytes
-            # DataFormatError joins a parser's multi-line message into one line
-            detail = f"{type(err).__name__}: {err}" if str(err).strip() else type(err).__name__
-            raise DataFormatError(path, None, f"cannot read the bag ({detail})") from None
-    options = {"max_range": max_range} if max_range is not None else {}
-    if mixed_geometry is not None:
-        options["mixed_geometry"] = mixed_geometry
-    if info is not None and info.loader != "carmen":
-        return info.load(seed=seed, **options), "off"
-    from jaxslam.datasets.log_cache import load_carmen_cached
-
-    if info is not None:
-        path, options = info.paths()[0], {**info.options, **options}
-    return load_carmen_cached(path, _log_cache_folder(), **options)
-
-
-def load_checked_log(info, path, seed=0, bag=None, max_range=None, mixed_geometry=None, max_odometry_step=None,
-                     temporal=False):
-    """``(log, log_cache, log_checks)``: the laser log of a registry entry ``info`` or
-    a ``path`` (CARMEN log or ROS bag), how the log cache served it, and what
-    :func:`jaxslam.datasets.checks.check_laser_log` found (a log that cannot give a
-    true map raises ``DataFormatError`` naming the file and the scan). A warning line
-    says when the scan stamps do not advance."""
-    log, log_cache = _load_log(info, path, seed, bag, max_range, mixed_geometry)
-    log_checks = check_laser_log(log, MAX_ODOMETRY_STEP if max_odometry_step is None else max_odometry_step,
-                                 temporal=temporal)
-    if not log_checks["stamps_advance"]:
-        print(f"jaxslam run: warning: {log.path}: its scan stamps do not advance ({log_checks['scans']} scans over "
-              f"{log_checks['stamp_span_s']:g} s); trajectory.tum carries them as logged", file=sys.stderr)
-    return log, log_cache, log_checks
-
-
-def _log_cache_folder() -> str | None:
-    """The compilation-cache folder (the log cache lives beside the compiled programs),
-    or None when that cache is off."""
-    import jax
-
-    return jax.config.jax_compilation_cache_dir
-
-
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
              checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False, loop_closure=None,
              max_odometry_step=None, mixed_geometry=None):
@@ -261,7 +177,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
         "odometry_repair": getattr(log, "odometry_repair", {}), "log_checks": log_checks,
     }
-    if path is not None and _is_bag(path):
+    if path is not None and is_bag(path):
         summary["bag"] = dict(log.params)  # the topics and frames used
     summary.update(score_grid_run(info, result, log))
     arrays = grid_arrays(result, title=f"{algorithm}, {name}, {particles} particles")
@@ -289,33 +205,6 @@ def _grid_live_log(viz, log, chunk):
     from jaxslam.viz.rerun_log import GridLiveLog
 
     return GridLiveLog(viz, log, every=min(chunk or 100, 100))
-
-
-# --------------------------------------------------------------------------- ROS bags
-
-BAG_OPTIONS = ("scan_topic", "odom_topic", "base_frame", "laser_offset")
-
-
-def _is_bag(path) -> bool:
-    from jaxslam.datasets.rosbag import is_rosbag
-
-    return is_rosbag(path)
-
-
-def _bag_options(bag: dict | None, path) -> dict:
-    """The ROS bag options that are set; an error if set for something that is not a bag."""
-    options = {k: v for k, v in (bag or {}).items() if v is not None}
-    unknown = set(options) - set(BAG_OPTIONS)
-    if unknown:
-        raise RunError(f"unknown ROS bag option(s) {sorted(unknown)}; use {', '.join(BAG_OPTIONS)}")
-    if options and (path is None or not _is_bag(path)):
-        raise RunError("--scan-topic/--odom-topic/--base-frame/--laser-mount apply to ROS bags only "
-                       "(a .bag file, a ROS 2 bag folder, .mcap or .db3)")
-    if "laser_offset" in options:
-        options["laser_offset"] = [float(v) for v in options["laser_offset"]]
-        if not np.isfinite(options["laser_offset"]).all():
-            raise RunError(f"--laser-mount {' '.join(map(str, options['laser_offset']))}: must be three finite numbers")
-    return options
 
 
 # --------------------------------------------------------------------------- entry points
@@ -385,10 +274,10 @@ def run(
 
     info, path, kind = resolve_dataset(dataset, algorithm)
     algorithm = algorithm or DEFAULT_ALGORITHM[kind]
-    if _kind_of(algorithm) != kind:
+    if kind_of(algorithm) != kind:
         name = info.name if info is not None else str(path)
         choices = algorithms(kind)
-        raise RunError(f"algorithm {algorithm!r} needs {_kind_of(algorithm)} data but dataset {name!r} is "
+        raise RunError(f"algorithm {algorithm!r} needs {kind_of(algorithm)} data but dataset {name!r} is "
                        f"{kind} data; use one of: {', '.join(choices)}")
     if info is not None and not info.simulated:
         info.paths()  # raises DatasetNotFoundError naming what is missing
@@ -404,7 +293,7 @@ def run(
     if keyframes and kind != "laser":
         raise RunError("keyframe thresholds (--linear-update/--angular-update/--temporal-update) apply to laser "
                        "data only; the landmark filters process every scan")
-    bag = _bag_options(bag, path)
+    bag = bag_options(bag, path)
     if (rerun is not None or rerun_spawn) and (checkpoint_every is not None or resume):
         raise RunError("--rerun/--rerun-spawn cannot be combined with --checkpoint-every/--resume")
     particles = particles or DEFAULT_PARTICLES[kind]
@@ -431,7 +320,7 @@ def run(
     if mixed_geometry is not None:
         if mixed_geometry not in ("raise", "pad"):
             raise RunError(f"--mixed-geometry must be 'raise' or 'pad', got {mixed_geometry!r}")
-        if kind != "laser" or (info is not None and info.simulated) or (path is not None and _is_bag(path)):
+        if kind != "laser" or (info is not None and info.simulated) or (path is not None and is_bag(path)):
             raise RunError("--mixed-geometry applies to CARMEN logs only")
         run_args["mixed_geometry"] = mixed_geometry
     if kind == "laser" and max_steps is not None and max_steps < 2:
@@ -535,118 +424,3 @@ def _run_and_write(out, stage, run_args, info, path, kind, algorithm, particles,
     return write_summary(stage / "summary.json", summary)
 
 
-# --------------------------------------------------------------------------- the run's report
-
-# The files of an output folder, in the order the report names them.
-OUTPUT_FILES = ("summary.json", "trajectory.tum", "landmarks.csv", "map.pgm", "map.yaml", "map.png",
-                "trajectory.png", "map_trajectory.png", "health.png", "arrays.npz", "run.json", "checkpoint.npz")
-
-
-def _number(value, digits: int) -> str:
-    """``value`` with ``digits`` decimals; ``n/a`` for None or NaN."""
-    if value is None or not np.isfinite(value):
-        return "n/a"
-    return f"{value:.{digits}f}"
-
-
-def _score_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
-    from jaxslam.metrics.scoring import matched_counts
-
-    counted = matched_counts(summary)
-    rows = []
-    if "trans_err_mean_m" in summary:
-        scored, total, _ = counted
-        rows.append(("relations error", f"{_number(summary['trans_err_mean_m'], 3)} m mean, "
-                     f"{_number(summary['trans_err_median_m'], 3)} m median, "
-                     f"{_number(summary['trans_err_max_m'], 3)} m max ({summary['n_trans_err_over_0_5m']} over "
-                     f"0.5 m), {_number(summary['rot_err_mean_deg'], 2)} deg mean; {scored} of {total} scored"))
-    if "gps_mean_m" in summary:
-        scored, total, _ = counted
-        rows.append(("GPS error", f"{_number(summary['gps_mean_m'], 2)} m mean, {_number(summary['gps_rms_m'], 2)} "
-                     f"m RMS, {_number(summary['gps_max_m'], 2)} m max; {scored} of {total} fixes used"))
-    if "pos_err_mean_m" in summary:
-        text = (f"{_number(summary['pos_err_mean_m'], 3)} m mean, {_number(summary['pos_err_rms_m'], 3)} m RMS, "
-                f"{_number(summary['pos_err_max_m'], 3)} m max against the ground truth")
-        if "nees_mean" in summary:
-            text += f"; pose NEES {_number(summary['nees_mean'], 2)} (consistent: {summary['nees_expected']:g})"
-        rows.append(("position error", text))
-    return rows or [("score", "none: no reference for this data (relations, GPS or ground truth)")]
-
-
-def report(summary: dict[str, Any], out: str | Path) -> str:
-    """A few lines for the terminal at the end of a run: what ran, its score, its times
-    and where its files are (the whole summary is ``out/summary.json``).
-
-    Args:
-        summary: what :func:`run` returned.
-        out: the output folder.
-    """
-    out = Path(out)
-    if "keyframes" in summary:  # laser data
-        steps = (f"{summary['scans']} scans, {summary['keyframes']} keyframes, {summary['resamplings']} "
-                 f"resamplings, {summary.get('closures', 0)} loop closures")
-        if summary.get("closures_undone"):
-            steps += f" ({summary['closures_undone']} undone)"
-        rate, unit = summary.get("keyframes_per_s"), "keyframes/s"
-    else:
-        steps = f"{summary['steps']} steps, {summary['resamplings']} resamplings, {summary['landmarks']} landmarks"
-        rate, unit = summary.get("steps_per_s"), "steps/s"
-    rows = [("filter", steps), *_score_rows(summary)]
-    if not summary.get("finite", True):
-        rows.append(("warning", "the trajectory has non-finite poses"))
-    repairs = {k: v for k, v in summary.get("repairs", {}).items() if v}
-    if repairs:
-        rows.append(("repaired", ", ".join(f"{v} {k.removeprefix('num_').replace('_', ' ')}"
-                                           for k, v in repairs.items())))
-    counts = summary.get("compilations", {})
-    compiled = (f" ({counts['compiled']} programs compiled, {counts['cache_hits']} loaded from the cache)"
-                if "compiled" in counts else "")
-    rows.append(("time", f"{_number(summary.get('total_s'), 1)} s in all: compilation "
-                 f"{_number(summary['compile_s'], 1)} s{compiled}, filter loop {_number(summary['wall_s'], 2)} s "
-                 f"({_number(rate, 0)} {unit})"))
-    present = {p.name for p in out.iterdir() if p.is_file()} if out.is_dir() else set()
-    files = [name for name in OUTPUT_FILES if name in present]
-    files += sorted(name for name in present - set(OUTPUT_FILES) if not name.endswith(".tmp"))
-    rows.append(("files", f"{out}: {', '.join(files)}"))
-    if summary.get("rerun"):
-        rows.append(("recording", str(summary["rerun"])))
-    width = max(len(label) for label, _ in rows)
-    head = f"{summary['algorithm']} on {summary['dataset']}, {summary['particles']} particles, seed {summary['seed']}"
-    return "\n".join([head, *(f"  {label:<{width}}  {text}" for label, text in rows)])
-
-
-def evaluate(trajectory: Path, relations: str | None = None, gps: str | None = None) -> dict[str, Any]:
-    """Score a TUM trajectory by a relations file (or dataset name) or by GPS."""
-    from jaxslam.metrics.trajectory_io import read_tum
-
-    if not Path(trajectory).exists():
-        raise DatasetNotFoundError(f"trajectory file {str(trajectory)!r} does not exist")
-    times, poses = read_tum(trajectory)
-    if relations is not None:
-        from jaxslam.metrics.relations import load_relations, relations_metric
-
-        path = Path(relations)
-        if not path.exists():
-            try:
-                info = lookup(relations)
-            except KeyError as err:
-                raise RunError(f"{relations!r} is neither a relations file nor a dataset name: {err.args[0]}") from None
-            path = info.relations_path()
-            if path is None:
-                raise RunError(f"dataset {info.name!r} has no relations file")
-        scores = relations_metric(load_relations(path), times, poses)
-        scores["relations_file"] = str(path)
-        return scores
-    try:
-        info = lookup(gps)
-    except KeyError as err:
-        raise RunError(f"--gps: {err.args[0]}") from None
-    if not info.gps:
-        with_gps = ", ".join(name for name, entry in DATASETS.items() if entry.gps)
-        raise RunError(f"GPS scoring is available for {with_gps}, not {info.name!r}")
-    from jaxslam.datasets.victoria_park import load_gps
-    from jaxslam.metrics.gps import gps_error
-
-    fixes = load_gps()
-    scores = gps_error(times, poses[:, :2], fixes.times, fixes.xy)
-    return {k: v for k, v in scores.items() if k not in ("used", "errors_m")}

@@ -1,10 +1,11 @@
 """Noise calibration by differentiating the particle filters' log marginal likelihood
 estimate (stop-gradient resampling, Scibior & Wood 2021).
 
+* :mod:`~jaxslam.calibrate.fit`: the Adam ascent over log noise levels (several
+  filters per step) and the choice of the iterate on held-out scans, for any filter.
 * :mod:`~jaxslam.calibrate.landmark`: ``differentiable_step`` and ``log_likelihoods``
-  for RB/ERB-UPF.
-* :mod:`~jaxslam.calibrate.fit`: ``calibrate`` (optax Adam over log noise levels,
-  several filters per step).
+  for RB/ERB-UPF, and ``calibrate`` on them.
+* :mod:`~jaxslam.calibrate.grid`: ``calibrate_grid`` for SRUPF-GM.
 
 The names below are imported on first use: the command line imports
 :mod:`jaxslam.app.calibrate` for its parser on every ``jaxslam`` call, and loading JAX
@@ -15,7 +16,7 @@ from importlib import import_module
 
 _HOMES = {
     "CalibrationResult": "jaxslam.calibrate.fit",
-    "calibrate": "jaxslam.calibrate.fit",
+    "calibrate": "jaxslam.calibrate.landmark",
     "NOISE_NAMES": "jaxslam.calibrate.landmark",
     "differentiable_step": "jaxslam.calibrate.landmark",
     "log_likelihoods": "jaxslam.calibrate.landmark",

@@ -44,15 +44,8 @@ gated filter that loses track does so abruptly, which the mixture's scores do no
 show), while the gated likelihood alone is biased to small noise (the gate shrinks
 with the noise, below).
 
-**Landmark filters** (:func:`calibrate`). The objective is the filter's estimate of
-:math:`\log Z` under the detection/clutter mixture likelihood by default
-(``likelihood="mixture"``, ``Config.likelihood``; see
-:mod:`jaxslam.feature.particle`), not under the paper's gated weights: with the
-gated weights the innovations that leave the (Mahalanobis) gate stop counting, so
-the gradient pulls the measurement noise down (the gate shrinks with the noise, so
-smaller noise leaves out more of the innovations that would count against it;
-``docs/calibration.md``). The calibrated levels are meant for
-either weight: ``jaxslam run --params`` runs the paper's filter with them.
+The landmark filters' objective and :func:`~jaxslam.calibrate.landmark.calibrate` are in
+:mod:`jaxslam.calibrate.landmark`, SRUPF-GM's in :mod:`jaxslam.calibrate.grid`.
 """
 
 from __future__ import annotations
@@ -66,9 +59,6 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxslam.calibrate.landmark import NOISE_NAMES, log_likelihoods, log_noise_of, with_log_noise
-from jaxslam.feature.experiment import ALGORITHMS, params_for
-from jaxslam.feature.params import Config, Params
 
 
 @dataclasses.dataclass
@@ -325,166 +315,3 @@ def select_iterate(
     record = Validation(*window[:2], validation_filters, window[2], validation_margin, candidates, scores, chosen,
                         time.perf_counter() - start, guard_scores=guards)
     return candidates[chosen], train_best, record
-
-
-_PROGRAMS: dict[Any, Any] = {}
-
-
-def value_and_grads(config: Config, names: Sequence[str] = NOISE_NAMES):
-    """Jitted ``(keys (S,), log_noise, params, controls, observations, obs_mask,
-    initial_pose) -> (values (S,), grads (S, len(names)))`` of ``log Z / T`` per filter."""
-    names = tuple(names)
-    if ("grad", config, names) not in _PROGRAMS:
-
-        def one(log_noise, key, params, controls, observations, obs_mask, initial_pose):
-            inc = log_likelihoods(key, with_log_noise(params, log_noise, names), config, controls, observations,
-                                  obs_mask, initial_pose)
-            return jnp.mean(inc)
-
-        batched = jax.vmap(jax.value_and_grad(one), (None, 0, None, None, None, None, None))
-        _PROGRAMS[("grad", config, names)] = jax.jit(lambda keys, th, *rest: batched(th, keys, *rest))
-    return _PROGRAMS[("grad", config, names)]
-
-
-def increments_program(config: Config, names: Sequence[str] = NOISE_NAMES):
-    """Jitted ``(keys (S,), log_noise, params, controls, observations, obs_mask,
-    initial_pose) -> (S, T)`` one-step log-likelihoods (forward only)."""
-    names = tuple(names)
-    if ("increments", config, names) not in _PROGRAMS:
-
-        def one(key, log_noise, params, controls, observations, obs_mask, initial_pose):
-            return log_likelihoods(key, with_log_noise(params, log_noise, names), config, controls, observations,
-                                   obs_mask, initial_pose, checkpoint=False)
-
-        _PROGRAMS[("increments", config, names)] = jax.jit(
-            jax.vmap(one, (0, None, None, None, None, None, None))
-        )
-    return _PROGRAMS[("increments", config, names)]
-
-
-def validation_score(
-    config: Config, names: Sequence[str], params: Any, data: tuple, fit_window: int, particles: int,
-    likelihood: str, dtype: Any = jnp.float32,
-) -> Callable[[jax.Array, Any], np.ndarray]:
-    """``score(keys (S,), log_noise) -> (S,)``: the mean one-step log-likelihood of
-    scans ``fit_window:`` of ``data`` (controls, observations, obs_mask, initial pose of
-    the whole window) under filters of ``particles`` particles weighing by
-    ``likelihood``, run from the first scan."""
-    if likelihood not in ("gated", "mixture"):
-        raise ValueError(f"validation likelihood must be 'gated' or 'mixture', got {likelihood!r}")
-    increments = increments_program(dataclasses.replace(config, num_particles=particles, likelihood=likelihood),
-                                    names)
-
-    def score(keys, th):
-        return np.asarray(increments(keys, jnp.asarray(th).astype(dtype), params, *data))[:, fit_window:].mean(1)
-
-    return score
-
-
-def calibrate(
-    sequence: Any,
-    algorithm: str = "erb-upf",
-    particles: int = 20,
-    filters: int = 4,
-    steps: int = 100,
-    learning_rate: float = 0.05,
-    window: int | None = None,
-    seed: int = 0,
-    params: Params | dict[str, Any] | None = None,
-    names: Sequence[str] = NOISE_NAMES,
-    config: dict[str, Any] | None = None,
-    dtype: Any = jnp.float32,
-    callback: Any = None,
-    likelihood: str = "mixture",
-    decay: float = 1.0,
-    validation: float = 0.25,
-    validate_every: int = 5,
-    validation_filters: int = 8,
-    validation_particles: int | None = None,
-    validation_margin: float = 2.0,
-    guard_likelihood: str | None = "gated",
-) -> CalibrationResult:
-    r"""Maximise the landmark filter's log marginal likelihood estimate over the log
-    noise levels and keep the iterate that does best on held-out scans (see the module
-    docstring).
-
-    Args:
-        sequence: landmark sequence (Victoria Park or the simulator).
-        algorithm: ``erb-upf`` or ``rb-upf``.
-        particles: particles per filter in the fit.
-        filters: filters (fresh seeds) averaged per step.
-        steps: Adam steps.
-        learning_rate: Adam step size on the log noise levels.
-        window: first ``window`` scans used (default all), fit and validation together.
-        seed: base seed of the filters' keys.
-        params: starting parameters (full or overrides on ``params_for``).
-        names: the noise levels fitted (default speed, steering, range, bearing).
-        config: overrides of :class:`~jaxslam.feature.params.Config` fields.
-        dtype: float dtype.
-        likelihood: the weight whose :math:`\log Z` is maximised (``Config.likelihood``:
-            ``"mixture"``, the default, or the paper's ``"gated"``, biased to small noise).
-        callback: ``callback(step, mean_log_likelihood, values)`` after each step.
-        decay: final step size as a fraction of ``learning_rate`` (cosine; 1: constant).
-        validation: the fraction of the window held out at its end (0: no validation,
-            keep the iterate with the best training objective).
-        validate_every: score every this many iterates (the start and last always).
-        validation_filters: filters per candidate (the same keys for all candidates).
-        validation_particles: particles of the validation filters (default
-            ``particles``; use the count the calibrated filter will run with).
-        validation_margin: standard errors a candidate must beat the start by.
-        guard_likelihood: the weights of the filter the calibrated levels are for
-            (``"gated"``, the paper's, which ``jaxslam run`` uses, or ``"mixture"``):
-            an iterate is kept only if none of the validation filters run with them
-            does worse on the held-out scans than with the start (None: no guard).
-    """
-    if algorithm not in ALGORITHMS:
-        raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}")
-    if min(particles, filters, steps, validation_filters) < 1:
-        raise ValueError("particles, filters, steps and validation_filters must be >= 1")
-    if not isinstance(params, Params):
-        params = params_for(sequence, **(params or {}))
-    names = tuple(names)
-    unknown = [n for n in names if n not in Params._fields]
-    if unknown:
-        raise ValueError(f"unknown parameter(s) {unknown}")
-    total = int(np.shape(sequence.controls)[0])
-    window = total if window is None else min(int(window), total)
-    if window < 1:
-        raise ValueError("window must be >= 1 scan")
-    fit_window = split_window(window, validation)
-    overrides = {"likelihood": likelihood, **(config or {})}
-    cfg = Config(num_particles=particles, proposal=ALGORITHMS[algorithm], **overrides)
-    params_arr = jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), params)
-
-    def data(scans):
-        return (jnp.asarray(sequence.controls[:scans], dtype), jnp.asarray(sequence.observations[:scans], dtype),
-                jnp.asarray(sequence.obs_mask[:scans], bool), jnp.zeros(3, dtype))
-
-    fit_data = data(fit_window)
-    program = value_and_grads(cfg, names)
-    theta = jnp.asarray(log_noise_of(params, names), dtype)
-    score, guard, val_particles = None, None, validation_particles or particles
-    if fit_window < window:
-        val_data = data(window)
-        score = validation_score(cfg, names, params_arr, val_data, fit_window, val_particles, likelihood, dtype)
-        if guard_likelihood is not None:
-            guard = validation_score(cfg, names, params_arr, val_data, fit_window, val_particles, guard_likelihood,
-                                     dtype)
-
-    ascent = ascend(program, (params_arr, *fit_data), theta, steps, learning_rate, filters, seed, decay, callback)
-    best, train_best, record = select_iterate(ascent, seed, score, (fit_window, window, val_particles), validate_every,
-                                              validation_filters, validation_margin, guard)
-    if record is not None:
-        record = dataclasses.replace(record, likelihood=likelihood, guard_likelihood=guard_likelihood)
-    path = ascent.trajectory
-    after = with_log_noise(params, np.log(np.asarray(path[best], float)), names)
-    after = jax.tree_util.tree_map(lambda x: np.asarray(x).tolist(), after)
-    return CalibrationResult(
-        names=names,
-        before={n: float(getattr(params, n)) for n in names},
-        after={n: float(getattr(after, n)) for n in names},
-        last=dict(zip(names, map(float, path[-1]))), best_step=best, train_best_step=train_best,
-        log_likelihood=ascent.log_likelihood, gradient_variance=ascent.gradient_variance, trajectory=path,
-        validation=record, compile_s=ascent.compile_s, wall_s=ascent.wall_s, config=cfg, params=after,
-        window=window, fit_window=fit_window, filters=filters,
-    )

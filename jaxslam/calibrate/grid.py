@@ -316,7 +316,7 @@ def calibrate_grid(
     (module docstring), keeping the iterate chosen on the held-out end of the window
     (:func:`jaxslam.calibrate.fit.ascend`, then
     :func:`jaxslam.calibrate.fit.select_iterate`; the arguments as for
-    :func:`jaxslam.calibrate.fit.calibrate`). ``samples``: draws per particle and
+    :func:`jaxslam.calibrate.landmark.calibrate`). ``samples``: draws per particle and
     keyframe. ``params``/``config``: overrides as for
     :func:`jaxslam.grid.experiment.run_grid_slam`, whose layout (pool doubled) the
     programs use: a window that needs more map than that gives non-finite values."""

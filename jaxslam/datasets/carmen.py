@@ -54,6 +54,10 @@ Layout: the per-line parsers are in :mod:`jaxslam.datasets.carmen_parse`, the bu
 line-by-line readers in :mod:`jaxslam.datasets.carmen_read`; :func:`~jaxslam.datasets.no_return.detect_no_return`
 (:mod:`jaxslam.datasets.no_return`) and :func:`~jaxslam.datasets.keyframes.select_keyframes`
 (:mod:`jaxslam.datasets.keyframes`) are re-exported here.
+
+One module of about 400 lines: the format's description, the :class:`CarmenLog` type
+every laser loader returns and its one loader; the parsing and reading are in
+:mod:`jaxslam.datasets.carmen_parse` and :mod:`jaxslam.datasets.carmen_read`.
 """
 
 from __future__ import annotations

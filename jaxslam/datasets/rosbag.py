@@ -59,6 +59,10 @@ counted instead (``stats["skipped_messages"]``, ``stats["skipped:<reason>"]``).
 Layout: the message readers and the time, heading and geometry helpers are in
 :mod:`jaxslam.datasets.rosbag_messages`, :func:`~jaxslam.datasets.rosbag_write.write_rosbag` in
 :mod:`jaxslam.datasets.rosbag_write`; both are re-exported here.
+
+One module of about 400 lines: choosing the topics, decoding the scans and the
+odometry and pairing them by stamp are one loader with one set of options; the
+message layouts are in :mod:`jaxslam.datasets.rosbag_messages`.
 """
 
 from __future__ import annotations

@@ -42,6 +42,10 @@ Innovations far out count against a small noise through the mixture, smoothly, s
 its gradient has no such bias; the observations are scored one by one (their
 correlation through the shared pose is left out: a composite likelihood). The
 association, proposal and map update are the same under both.
+
+One module of about 400 lines: the particle's step and the landmark kernels it calls
+(prediction, landmark update and initialisation, the table writes) are steps 1-5 of
+the paper in order, and read best side by side.
 """
 
 from __future__ import annotations

@@ -139,6 +139,11 @@ off, the same run bit for bit.
 What the reports do on the host with the undos recorded here (the path reported after
 an undone closure, the judgment of a closure still watched at the end) is
 :mod:`jaxslam.grid.undone_closures`.
+
+One module of about 540 lines, a quarter of them the rules above: the search, its
+confirmation and its watch share the candidate window and the layout of the closure
+memory they carry from scan to scan; judging a closure at the end of a run and the
+path it takes back are in :mod:`jaxslam.grid.undone_closures`.
 """
 
 from __future__ import annotations

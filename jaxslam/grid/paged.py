@@ -53,6 +53,10 @@ Size: one module of a little over 400 lines on purpose: the layout, reads, the w
 plan with its reference counts, resampling, growth and stitching all maintain the
 same invariant (``refcount`` equals the number of table entries per slot, slot 0
 pinned), and keeping them side by side is what makes that invariant checkable.
+
+One module of about 480 lines: the layout, the reads, the write plan, the resampling
+copies and the growth all index the same pool and page tables, and change together
+whenever the layout does.
 """
 
 from __future__ import annotations

@@ -89,6 +89,11 @@ and costs on real logs: the documentation's design notes (``docs/design.md``,
 The pose of every scan is the filter's own: the best lineage's keyframe pose composed
 with the tracked motion :math:`m_t` of the scan (``Info.motion``), see
 :func:`scan_trajectory`.
+
+One module of about 400 lines, a third of them the model above: the per-scan step and
+the pieces it is made of (the match and its retry, the constrained correction, the
+noise scales, the keyframe rule) change together; the closure search and the
+recovery it calls are modules of their own.
 """
 
 from __future__ import annotations

@@ -47,6 +47,10 @@ observation. Per step (Thrun, Burgard & Fox, *Probabilistic Robotics*, Tables 8.
 6. **Estimate.** The weighted circular mean of the particles within 1.5 bins of the
    heaviest bin (the mode, not the mean of a multi-modal cloud), with the mass it
    holds (``cluster_weight``) and the weighted spread of the whole cloud.
+
+One module of about 450 lines: the filter's config, params, state and info beside its
+step and factory, as for the other filters, with the KLD bound, the mode estimate and
+the tempering that only this filter uses.
 """
 
 from __future__ import annotations

@@ -107,7 +107,7 @@ def test_validation_scores_with_the_weights_of_the_filter_to_be_run():
 
     import jax
 
-    from jaxslam.calibrate.fit import validation_score
+    from jaxslam.calibrate.landmark import validation_score
     from jaxslam.calibrate.landmark import log_likelihoods, log_noise_of, with_log_noise
     from jaxslam.feature.experiment import ALGORITHMS
     from jaxslam.feature.params import Config

@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from jaxslam.app import runs
+from jaxslam.app import data
 from jaxslam.datasets import log_cache
 from jaxslam.datasets.carmen import load_carmen
 from jaxslam.datasets.log_cache import entry_path, load_carmen_cached
@@ -130,10 +130,10 @@ def test_folder_is_trimmed_oldest_first(tmp_path, monkeypatch):
 
 def test_run_loads_through_the_cache(tmp_path, monkeypatch):
     log_path = _write(tmp_path, GOOD)
-    monkeypatch.setattr(runs, "_log_cache_folder", lambda: str(tmp_path / "cache"))
-    assert runs._load_log(None, log_path, 0, None, None)[1] == "stored"
-    log, status = runs._load_log(None, log_path, 0, None, 3.0)
+    monkeypatch.setattr(data, "log_cache_folder", lambda: str(tmp_path / "cache"))
+    assert data.load_log(None, log_path, 0, None, None)[1] == "stored"
+    log, status = data.load_log(None, log_path, 0, None, 3.0)
     assert status == "stored" and log.max_range == 3.0
-    assert runs._load_log(None, log_path, 0, None, None)[1] == "hit"
-    monkeypatch.setattr(runs, "_log_cache_folder", lambda: None)
-    assert runs._load_log(None, log_path, 0, None, None)[1] == "off"
+    assert data.load_log(None, log_path, 0, None, None)[1] == "hit"
+    monkeypatch.setattr(data, "log_cache_folder", lambda: None)
+    assert data.load_log(None, log_path, 0, None, None)[1] == "off"

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
 from jaxslam.grid.export import save_map, write_pgm
-from jaxslam.grid.mapfile import load_map, parse_map_yaml, read_pgm_image, save_map_npz
+from jaxslam.grid.map_server import parse_map_yaml, read_pgm_image
+from jaxslam.grid.mapfile import load_map, save_map_npz
 
 
 def _map_server_value(pixel, has_alpha, mode, negate, occ_th, free_th):

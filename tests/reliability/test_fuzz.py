@@ -1,7 +1,7 @@
 """Random damage to laser logs and bags: the command line's loading and checks either
 give a log a filter can run on, or one line naming the file and the problem.
 
-Each case goes through :func:`jaxslam.app.runs.load_checked_log`, what ``jaxslam run``
+Each case goes through :func:`jaxslam.app.data.load_checked_log`, what ``jaxslam run``
 does before it compiles anything (most damaged logs end there); a few go through the
 whole command line in this process (exit status 2, one line). The exit-0 side (a
 complete, valid output folder) is :mod:`tests.reliability.test_outputs`. The default
@@ -18,7 +18,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxslam.app.runs import load_checked_log
+from jaxslam.app.data import load_checked_log
 from jaxslam.datasets.paths import DataFormatError
 from tests.reliability.conftest import assert_one_line_error
 from tests.reliability.logs import carmen_text, flaser, room_scans
