@@ -20,8 +20,8 @@ Standard deviations are population ones (``ddof=0``).
 A relation's two stamps are matched to the nearest trajectory stamp; one farther
 than ``tolerance`` leaves the relation unmatched. Unmatched relations are not scored
 and are counted in ``n_unmatched``. The benchmark stamps equal the logs' FLASER
-``ipc_timestamp`` exactly, and the Intel log has scans only 6 us apart, so the default
-tolerance is 1 us: it absorbs printing round-off and nothing more.
+``ipc_timestamp`` exactly, and a log can hold scans only microseconds apart, so the
+default tolerance is 1 us: it absorbs printing round-off and nothing more.
 
 ``.relations`` files: one relation per line, ``t1 t2 x y z roll pitch yaw`` (m, rad),
 z, roll and pitch zero. Host-side only; never imports jax.
