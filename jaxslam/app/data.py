@@ -1,6 +1,8 @@
-"""The data a command runs on: a dataset name, a CARMEN log or a ROS bag resolved
-(:func:`resolve_dataset`), the ROS bag options checked (:func:`bag_options`) and the
-laser log loaded and checked (:func:`load_log`, :func:`load_checked_log`).
+"""The data a command runs on: a dataset name, a CARMEN log or a ROS bag resolved, the
+ROS bag options checked and the laser log loaded and checked.
+
+:func:`resolve_dataset` resolves ``--dataset``, :func:`bag_options` checks the bag
+options, :func:`load_log` and :func:`load_checked_log` load the laser log.
 
 ``jaxslam run`` (:mod:`jaxslam.app.runs`), ``jaxslam calibrate`` and ``jaxslam
 localize`` read their data through these functions, so that every command accepts the

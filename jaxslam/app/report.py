@@ -1,6 +1,8 @@
-"""What a run reports: the few lines ``jaxslam run`` prints at its end
-(:func:`report`, from the run's summary and its folder) and ``jaxslam evaluate``'s
-score of a TUM trajectory (:func:`evaluate`).
+"""What a run reports: the few lines ``jaxslam run`` prints at its end and ``jaxslam
+evaluate``'s score of a TUM trajectory.
+
+:func:`report` writes the lines from the run's summary and its folder; :func:`evaluate`
+scores a trajectory by a relations file or by GPS.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ def report(summary: dict[str, Any], out: str | Path) -> str:
     and where its files are (the whole summary is ``out/summary.json``).
 
     Args:
-        summary: what :func:`run` returned.
+        summary: what :func:`jaxslam.app.runs.run` returned.
         out: the output folder.
     """
     out = Path(out)

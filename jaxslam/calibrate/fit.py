@@ -100,7 +100,7 @@ class Validation:
 
 @dataclasses.dataclass
 class CalibrationResult:
-    """Outcome of :func:`calibrate` (and of the grid calibration).
+    """Outcome of :func:`jaxslam.calibrate.landmark.calibrate` (and of the grid calibration).
 
     Attributes:
         names: the calibrated parameters.

@@ -42,8 +42,8 @@ import numpy as np
 
 from jaxslam.datasets.paths import DataFormatError
 
+# The values of a ROS OccupancyGrid cell.
 OCCUPIED_VALUE, FREE_VALUE, UNKNOWN_VALUE = 100, 0, -1
-"""ROS OccupancyGrid values: occupied, free, unknown."""
 MODES = ("trinary", "scale", "raw")
 _REQUIRED = ("image", "resolution", "origin", "occupied_thresh", "free_thresh")
 

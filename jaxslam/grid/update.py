@@ -147,9 +147,10 @@ def update_grids(
 ) -> tuple[Array, Array]:
     """Integrate one scan into dense grids ``(P, H, W)`` at robot ``poses (P, 3)``.
 
-    Same result as :func:`update_grid` of each particle's :func:`ray_cells`, but the
-    free cells are processed ``chunk_rows`` rows at a time and only as many chunks run as this scan
-    needs (:func:`integrate_rays`), so a short scan does not pay for the
+    Same result as :func:`update_grid` of each particle's
+    :func:`~jaxslam.grid.rays.ray_cells`, but the free cells are processed
+    ``chunk_rows`` rows at a time and only as many chunks run as this scan needs
+    (:func:`integrate_rays`), so a short scan does not pay for the
     ``max_points`` budget. The dense reference of the paged maps
     (:func:`update_paged`).
 
