@@ -178,13 +178,9 @@ def stop_gradient_log_weights(log_weights: Array, ancestors: Array) -> Array:
     return -jnp.log(jnp.asarray(n, log_weights.dtype)) + (safe - jax.lax.stop_gradient(safe))
 
 
-def selective_resample_stop_gradient(
-    key: Array,
-    log_weights: Array,
-    threshold: Array | float = 0.5,
-    method: str | Resampler = "systematic",
-) -> tuple[Array, Array, Array]:
-    """:func:`selective_resample` with stop-gradient resampling (Scibior & Wood 2021).
+def selective_resample_stop_gradient(key: Array, log_weights: Array, *args, **kwargs) -> tuple[Array, Array, Array]:
+    """:func:`selective_resample` with stop-gradient resampling (Scibior & Wood 2021);
+    the same arguments (``threshold``, ``method`` after ``log_weights``).
 
     The same ancestors, flag and forward values as :func:`selective_resample` (bit for
     bit); where it resampled, the new log-weights are
@@ -192,6 +188,6 @@ def selective_resample_stop_gradient(
     likelihood estimate flow through resampling. The index draw itself carries no
     gradient (it is discrete).
     """
-    ancestors, resampled, new_log_weights = selective_resample(key, log_weights, threshold, method)
+    ancestors, resampled, new_log_weights = selective_resample(key, log_weights, *args, **kwargs)
     carried = stop_gradient_log_weights(normalize_log_weights(log_weights), ancestors)
     return ancestors, resampled, jnp.where(resampled, carried, new_log_weights)
