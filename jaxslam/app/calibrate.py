@@ -16,7 +16,7 @@ from jaxslam.datasets.registry import ALGORITHMS, algorithms
 ALGORITHM_CHOICES = tuple(ALGORITHMS)
 LANDMARK = algorithms("landmark")
 GRID = ("srupf-gm",)
-# --window when not given: landmark scans, laser scans (Intel: about 30 keyframes).
+# --window when not given: landmark scans, laser scans (a few dozen keyframes of an indoor log).
 DEFAULT_WINDOW = {"landmark": 200, "laser": 600}
 
 

@@ -161,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="laser data: where the tracking's match fails in a mapped place, search up to 6 m "
                           "(each axis) and 8 deg around it, after long travel without a closure up to 10 m (2 cm "
                           "per m of odometry since the last one), and take a clearly better pose (closes large "
-                          "loops such as MIT Killian's; a closure whose beams keep ending in known free space over "
+                          "loops that come back metres off the old map; a closure whose beams keep ending in known free space over "
                           "the next 5 m is undone). Default: on for srupf-gm, off for the GMapping-style filter")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
