@@ -14,11 +14,19 @@ from pathlib import Path
 from typing import Any
 
 
+DESCRIPTION = """\
+Write a laser log (a dataset name, a CARMEN log path or the laser simulator) as a
+ROS 1 or ROS 2 bag, in the conventions `jaxslam run --dataset BAG` reads:
+sensor_msgs/LaserScan on /scan, nav_msgs/Odometry on /odom (or odom -> base_link
+on /tf), the laser mount on /tf_static.
+"""
+
+
 def add_parser(sub, positive_int, nonneg_int) -> None:
     ex = sub.add_parser(
         "export-bag",
         help="write a laser log (dataset name or CARMEN log path) as a ROS 1 or ROS 2 bag",
-        description=__doc__.split("\n\n")[0].replace("``", "`"),
+        description=DESCRIPTION,
     )
     ex.add_argument("--dataset", required=True,
                     help="laser dataset name (see `jaxslam datasets`) or a path to a CARMEN log")
