@@ -52,6 +52,7 @@ templates_path = ["_templates"]
 # Notebooks: rendered with their stored outputs (docs/execute_notebooks.py; the particle sweeps
 # take minutes each, so the build does not run them; tests/test_notebooks.py checks they are current).
 nb_execution_mode = "off"
+nb_merge_streams = True  # a loop's printed lines in one output box, not one box per print
 myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 

@@ -51,8 +51,9 @@ _LEVELS = {"TRACE": logging.DEBUG, "DEBUG": logging.DEBUG, "INFO": logging.INFO,
 @contextlib.contextmanager
 def native_messages_to_logging():
     """Inside the block, what native code writes to file descriptor 2 is caught; at its
-    end each caught line goes to :data:`LOGGER` as ``jaxslam: rerun: <message>``, at the level
-    the line names (warning when it names none), ANSI colours and timestamp removed."""
+    end each caught line goes to the ``jaxslam.viz.rerun`` logger as
+    ``jaxslam: rerun: <message>``, at the level the line names (warning when it names
+    none), ANSI colours and timestamp removed."""
     sys.stderr.flush()
     try:
         saved = os.dup(2)
