@@ -3,7 +3,8 @@
 Before a build it writes the result tables from ``benchmarks/results/``
 (``generate_tables.py``) and the parameter reference from
 :func:`jaxslam.app.params.parameter_reference` (``generate_parameters.py``), and copies
-the notebooks from ``notebooks/`` (rendered as committed: they are not executed here).
+the notebooks from ``notebooks/`` (rendered with the outputs stored in them by ``docs/execute_notebooks.py``; the
+build does not run them).
 """
 
 from __future__ import annotations
@@ -48,8 +49,10 @@ source_suffix = {".rst": "restructuredtext", ".md": "myst-nb", ".ipynb": "myst-n
 exclude_patterns = ["_build", "_generated", "README.md", "**.ipynb_checkpoints"]
 templates_path = ["_templates"]
 
-# Notebooks: rendered as they are in notebooks/ (never executed by the build).
+# Notebooks: rendered with their stored outputs (docs/execute_notebooks.py; the particle sweeps
+# take minutes each, so the build does not run them; tests/test_notebooks.py checks they are current).
 nb_execution_mode = "off"
+nb_merge_streams = True  # a loop's printed lines in one output box, not one box per print
 myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 

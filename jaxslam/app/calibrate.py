@@ -58,6 +58,8 @@ def add_parser(sub, positive_int, nonneg_int) -> None:
                           "no validation filter with them does worse than with the start ('none': no guard)")
     cal.add_argument("--float64", action="store_true", help="double precision")
     cal.add_argument("--no-plots", action="store_true", help="skip calibration.png")
+    cal.add_argument("--json", action="store_true",
+                     help="print the fitted values, objectives and times as JSON in place of the short summary")
 
 
 def run(args) -> dict[str, Any]:
@@ -107,7 +109,65 @@ def run(args) -> dict[str, Any]:
     write_json(out / "calibration.json", payload)
     if not args.no_plots:
         plot_curve(payload, out / "calibration.png")
-    return {k: payload[k] for k in ("dataset", "algorithm", "params_before", "params_after", "time_s")}
+    return summary(payload)
+
+
+def summary(payload: dict[str, Any]) -> dict[str, Any]:
+    """What ``jaxslam calibrate --json`` prints: the fitted values, the objective at the
+    start and at the kept iterate (training: ``log Z`` per fitted scan; held out: per
+    held-out scan, None without validation), and the times [s]."""
+    train = payload["log_likelihood"]
+    best = payload["best_step"]
+    validation = payload.get("validation")
+    held_out = None
+    if validation is not None:
+        scores = dict(zip(validation["steps"], validation["mean_scores"], strict=True))
+        held_out = {"before": scores.get(0), "after": scores.get(validation["selected_step"])}
+    return {
+        **{k: payload[k] for k in ("dataset", "algorithm", "params_before", "params_after")},
+        "kept_step": best, "steps": payload["steps"],
+        "objective_unit": payload["log_likelihood_unit"],
+        "objective_train": {"before": train[0] if train else None,
+                            "after": train[best] if best < len(train) else None},
+        "objective_held_out": held_out,
+        "compile_s": payload["compile_s"], "time_s": payload["time_s"],
+    }
+
+
+def report(result: dict[str, Any], out: str | Path) -> str:
+    """A few lines for the terminal at the end of a calibration: the fitted values,
+    the objective before and after, the times and where the files are (the whole
+    record is ``out/calibration.json``).
+
+    Args:
+        result: what :func:`run` returned.
+        out: the output folder.
+    """
+    out = Path(out)
+
+    def value(v) -> str:
+        return "[" + ", ".join(f"{x:.4g}" for x in v) + "]" if isinstance(v, list) else f"{v:.4g}"
+
+    def pair(objective) -> str:
+        before, after = objective["before"], objective["after"]
+        return " -> ".join("-" if x is None else f"{x:.4f}" for x in (before, after))
+
+    width = max(len(name) for name in result["params_after"])
+    rows = [(f"{name:<{width}}", f"{value(result['params_before'][name])} -> {value(after)}")
+            for name, after in result["params_after"].items()]
+    objective = f"{pair(result['objective_train'])} per fitted scan"
+    if result["objective_held_out"] is not None:
+        objective += f", {pair(result['objective_held_out'])} per held-out scan"
+    rows.append(("objective", f"{objective} (log Z, mean over filters)"))
+    kept = " (the start: no iterate did better)" if result["kept_step"] == 0 else ""
+    rows.append(("kept", f"Adam iterate {result['kept_step']} of {result['steps']}{kept}"))
+    rows.append(("time", f"compilation {result['compile_s']:.1f} s, fit {result['time_s']:.1f} s"))
+    present = sorted(p.name for p in out.iterdir() if p.is_file()) if out.is_dir() else []
+    rows.append(("files", f"{out}: {', '.join(present)}"))
+    rows.append(("use", f"jaxslam run --params {out / 'calibration.json'} ..."))
+    label_width = max(len(label) for label, _ in rows)
+    head = f"{result['algorithm']} calibrated on {result['dataset']}"
+    return "\n".join([head, *(f"  {label:<{label_width}}  {text}" for label, text in rows)])
 
 
 def plot_curve(payload: dict[str, Any], path: Path, title: str | None = None) -> Path:

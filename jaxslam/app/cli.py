@@ -1,4 +1,5 @@
-"""The ``jaxslam`` command line: run, localize, evaluate, datasets, plot.
+"""The ``jaxslam`` command line: run, localize, evaluate, datasets, plot, calibrate,
+export-bag.
 
 Bad arguments exit with status 2 and a message that says what is wrong; a missing
 dataset names the dataset, every place searched and how to set ``JAXSLAM_DATA``.
@@ -31,8 +32,9 @@ EPILOG = """examples:
   jaxslam run --dataset intel --algorithm srupf-gm --particles 30 --out runs/intel
   jaxslam evaluate --relations intel --trajectory runs/intel/trajectory.tum
   jaxslam datasets
-  jaxslam datasets --inspect robot.bag            topics, types, counts and rates of a ROS bag
-  jaxslam run --dataset robot.bag --scan-topic /scan --odom-topic /odom --out runs/robot
+  jaxslam export-bag --dataset intel --out runs/robot.bag    a CARMEN log as a ROS 1 bag
+  jaxslam datasets --inspect runs/robot.bag       topics, types, counts and rates of a ROS bag
+  jaxslam run --dataset runs/robot.bag --scan-topic /scan --odom-topic /odom --out runs/robot
   jaxslam plot runs/intel
   jaxslam localize --map runs/intel --dataset intel --global --particles 10000 --out runs/intel-loc
   jaxslam calibrate --dataset victoria-park --algorithm erb-upf --out runs/cal
@@ -221,6 +223,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_localize_parser(sub, _positive_int, _nonneg_int)
 
+    from jaxslam.app.export import add_parser as add_export_parser
+
+    add_export_parser(sub, _positive_int, _nonneg_int)
+
     pl = sub.add_parser("plot", help="re-draw the figures of an output folder from its files")
     pl.add_argument("folder", type=Path, help="output folder written by `jaxslam run`")
     return parser
@@ -396,11 +402,24 @@ def cmd_plot(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
+    from jaxslam.app.calibrate import report
     from jaxslam.app.calibrate import run as run_calibrate
 
-    from jaxslam.app.outputs import json_default
+    result = run_calibrate(args)
+    if args.json:
+        from jaxslam.app.outputs import json_default
 
-    print(json.dumps(run_calibrate(args), indent=2, default=json_default))
+        print(json.dumps(result, indent=2, default=json_default))
+    else:
+        print(report(result, args.out))
+    return 0
+
+
+def cmd_export_bag(args) -> int:
+    from jaxslam.app.export import report
+    from jaxslam.app.export import run as run_export
+
+    print(report(run_export(args)))
     return 0
 
 
@@ -422,7 +441,7 @@ def cmd_localize(args) -> int:
     return 0
 
 
-COMMANDS = {"calibrate": cmd_calibrate, "localize": cmd_localize, "run": cmd_run, "evaluate": cmd_evaluate, "datasets": cmd_datasets, "plot": cmd_plot}
+COMMANDS = {"calibrate": cmd_calibrate, "export-bag": cmd_export_bag, "localize": cmd_localize, "run": cmd_run, "evaluate": cmd_evaluate, "datasets": cmd_datasets, "plot": cmd_plot}
 
 
 def main(argv: list[str] | None = None) -> int:

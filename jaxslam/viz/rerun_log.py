@@ -21,13 +21,62 @@ and the outputs so far; it saves nothing); :meth:`RerunLog.landmark_callback` is
 
 Rerun is an optional dependency; without it :func:`require_rerun` raises an
 :class:`ImportError` that names ``pip install "jaxslam[viz]"``.
+
+Rerun's native (Rust) logger writes its warnings straight to the process's standard
+error, with ANSI colours, out of reach of Python's warnings and logging. Where this
+module calls into it synchronously (creating, connecting and closing the recording),
+:func:`native_messages_to_logging` catches what it writes there and passes each line,
+without colours or timestamp, to the ``jaxslam.viz.rerun`` logger: one plain line on
+the terminal, or wherever the program sends its logging.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 import re
+import sys
+import tempfile
 from typing import Any
+
+LOGGER = logging.getLogger("jaxslam.viz.rerun")
+_ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
+# Rerun's native line: "2026-01-01T00:00:00.000000Z  WARN re_log_types::app_id: message"
+_NATIVE = re.compile(r"^(?:\S+Z\s+)?(TRACE|DEBUG|INFO|WARN|ERROR)\s+(?:[\w:]+:\s+)?(.*)$")
+_LEVELS = {"TRACE": logging.DEBUG, "DEBUG": logging.DEBUG, "INFO": logging.INFO, "WARN": logging.WARNING,
+           "ERROR": logging.ERROR}
+
+
+@contextlib.contextmanager
+def native_messages_to_logging():
+    """Inside the block, what native code writes to file descriptor 2 is caught; at its
+    end each caught line goes to the ``jaxslam.viz.rerun`` logger as
+    ``jaxslam: rerun: <message>``, at the level the line names (warning when it names
+    none), ANSI colours and timestamp removed."""
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no file descriptor 2 (an embedded interpreter): nothing to catch
+        yield
+        return
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            caught.seek(0)
+            text = caught.read().decode("utf-8", errors="replace")
+    for line in text.splitlines():
+        line = _ANSI.sub("", line).strip()
+        if not line:
+            continue
+        match = _NATIVE.match(line)
+        level, message = (_LEVELS[match.group(1)], match.group(2)) if match else (logging.WARNING, line)
+        LOGGER.log(level, "jaxslam: rerun: %s", message)
 
 import numpy as np
 
@@ -88,14 +137,15 @@ class RerunLog:
         if path is None and not spawn:
             raise ValueError("give a path for the .rrd file, spawn=True, or both")
         self.rr = rr
-        self.stream = rr.RecordingStream(application_id(name))
-        sinks = []
-        if path is not None:
-            sinks.append(rr.FileSink(str(path)))
-        if spawn:
-            rr.spawn(connect=False)
-            sinks.append(rr.GrpcSink())
-        self.stream.set_sinks(*sinks)
+        with native_messages_to_logging():
+            self.stream = rr.RecordingStream(application_id(name))
+            sinks = []
+            if path is not None:
+                sinks.append(rr.FileSink(str(path)))
+            if spawn:
+                rr.spawn(connect=False)
+                sinks.append(rr.GrpcSink())
+            self.stream.set_sinks(*sinks)
         self.path = path
 
     def at(self, scan: int, stamp: float | None = None) -> None:
@@ -182,8 +232,9 @@ class RerunLog:
         self.landmarks(result.landmark_means, result.landmark_covs)
 
     def close(self) -> None:
-        self.stream.flush()
-        self.stream.disconnect()
+        with native_messages_to_logging():
+            self.stream.flush()
+            self.stream.disconnect()
 
 
 def _summary_structure():

@@ -78,3 +78,27 @@ def test_grid_calibration_is_given_the_log(tmp_path, monkeypatch):
     with pytest.raises(Stop):
         main(["calibrate", "--algorithm", "srupf-gm", "--dataset", str(log_path), "--out", str(tmp_path / "cal")])
     assert isinstance(seen["log"], CarmenLog) and seen["log"].num_scans == 2
+
+
+def payload_of_a_calibration(validation=True):
+    return {"dataset": "sim-landmarks", "algorithm": "erb-upf", "params_before": {"range_std": 0.9, "q": [1.0, 2.0]},
+            "params_after": {"range_std": 0.31, "q": [0.5, 2.5]}, "best_step": 2, "steps": 3,
+            "log_likelihood": [-3.0, -2.0, -1.5], "log_likelihood_unit": "log Z / scans (mean over filters)",
+            "validation": {"steps": [0, 1, 2, 3], "mean_scores": [-4.0, -3.0, -2.5, -2.6], "selected_step": 2}
+            if validation else None, "compile_s": 12.0, "time_s": 3.5}
+
+
+def test_the_short_summary_names_values_objectives_and_files(tmp_path):
+    from jaxslam.app.calibrate import report, summary
+
+    (tmp_path / "calibration.json").write_text("{}")
+    text = report(summary(payload_of_a_calibration()), tmp_path)
+    assert text.splitlines()[0] == "erb-upf calibrated on sim-landmarks"
+    assert "0.9 -> 0.31" in text and "[1, 2] -> [0.5, 2.5]" in text
+    assert "-3.0000 -> -1.5000 per fitted scan" in text and "-4.0000 -> -2.5000 per held-out scan" in text
+    assert "Adam iterate 2 of 3" in text and f"{tmp_path}: calibration.json" in text
+    assert len(text.splitlines()) <= 10
+    assert "- -> -" not in text
+    without = summary(payload_of_a_calibration(validation=False))
+    assert without["objective_held_out"] is None
+    assert "-3.0000 -> -1.5000 per fitted scan (log Z" in report(without, tmp_path)

@@ -109,3 +109,21 @@ def test_a_path_as_the_recordings_name_prints_nothing(tmp_path, capfd):
     assert read_rrd(tmp_path / "path.rrd")["/health/ess"][0]["Scalars:scalars"] == [2.0]
     captured = capfd.readouterr()
     assert captured.err == "" and captured.out == ""
+
+
+def test_a_native_rerun_warning_becomes_one_plain_log_line(capfd, caplog):
+    """What Rerun's native logger writes to fd 2 (here its warning about an invalid
+    application id, which RerunLog itself never gives it) reaches the terminal only as
+    a record of the ``jaxslam.viz.rerun`` logger: no ANSI, no timestamp, one line."""
+    rr = pytest.importorskip("rerun")
+    from jaxslam.viz.rerun_log import native_messages_to_logging
+
+    with caplog.at_level("WARNING", logger="jaxslam.viz.rerun"):
+        with native_messages_to_logging():
+            rr.RecordingStream("runs/an.invalid/id")
+    assert capfd.readouterr().err == ""
+    (record,) = [r for r in caplog.records if r.name == "jaxslam.viz.rerun"]
+    message = record.getMessage()
+    assert record.levelname == "WARNING" and message.startswith("jaxslam: rerun: Application ID")
+    assert "\x1b" not in message and "\n" not in message and "re_log_types" not in message
+
