@@ -166,9 +166,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="with --start-map: the first scan's pose in the map's frame (m, m, rad); default: the "
                           "saved run's last pose where its map.npz records it, else 0 0 0")
     run.add_argument("--localize-first", action="store_true",
-                     help="with --start-map: find the first scan's pose by Monte Carlo localization from a "
-                          "uniform start over the map's free space (20000 particles, the first 300 scans; exits "
-                          "if it does not converge)")
+                     help="with --start-map: localize the log's first scans in the map by Monte Carlo "
+                          "localization from a uniform start over its free space (20000 particles, the first 300 "
+                          "scans; exits if it does not converge), then map from the last of them on")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",

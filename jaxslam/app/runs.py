@@ -13,6 +13,7 @@ to :func:`run` in :mod:`jaxslam.app.cli`.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -232,7 +233,8 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     if start_map is not None:
         start = {"start_map": start_map, "initial_pose": initial_pose}
         if localize_first:
-            start["initial_pose"], localized = localized_start(log, start_map, seed)
+            first, start["initial_pose"], localized = localized_start(log, start_map, seed)
+            log = from_scan(log, first)
     live = None
     if viz is not None:
         live = _grid_live_log(viz, log, chunk)
@@ -315,29 +317,42 @@ def _start_map(start_map, initial_pose, localize_first: bool, kind: str, algorit
 
 
 def localized_start(log, grid, seed: int, particles: int = LOCALIZE_PARTICLES, scans: int = LOCALIZE_SCANS):
-    """``(pose of the first scan, report)``: Monte Carlo localization from a uniform
-    start over the map's free space (:func:`jaxslam.localization.experiment.localize`)
-    on the first ``scans`` scans, converged by the localizer's own rule
-    (:func:`jaxslam.localization.experiment.self_convergence`: the cloud within 0.5 m
-    holding 90 % of the weight at 10 measurements in a row). The estimate at the last
-    of those measurements is carried back to the first scan along the odometry; a
-    :class:`RunError` if the cloud does not converge."""
-    from jaxslam.datasets.geometry import se2_between, se2_compose
+    """``(scan, pose, report)``: where mapping starts after Monte Carlo localization
+    from a uniform start over the map's free space
+    (:func:`jaxslam.localization.experiment.localize`) on the first ``scans`` scans.
+
+    The cloud has converged by the localizer's own rule
+    (:func:`jaxslam.localization.experiment.self_convergence`: within 0.5 m, holding
+    90 % of the weight, at 10 measurements in a row); it then keeps tracking to the
+    last of those scans, whose estimate starts the mapping there. A
+    :class:`~jaxslam.app.errors.RunError` if the cloud does not converge."""
     from jaxslam.localization.experiment import localize, self_convergence
 
     result = localize(log, grid, particles=particles, seed=seed, max_steps=scans, snapshots=0)
     first = self_convergence(result)
-    measured = np.flatnonzero(result.info["updated"])
     if first is None:
         raise RunError(f"--localize-first: the localization in {str(grid.source)!r} did not converge in the first "
                        f"{result.trajectory.shape[0]} scans of the log (no cloud within 0.5 m holding 90 % of the "
                        "weight at 10 measurements in a row); give --initial-pose")
-    scan = int(measured[np.searchsorted(measured, first) + 9])
-    odom = np.asarray(log.odom_poses, np.float64)  # localize's step s is scan s
-    pose = se2_compose(result.trajectory[scan], se2_between(odom[scan], odom[0]))
-    report = {"particles": particles, "converged_scan": scan, "estimate": result.trajectory[scan].tolist(),
+    scan = int(result.trajectory.shape[0] - 1)  # localize's step s is scan s
+    report = {"particles": particles, "converged_scan": int(first), "start_scan": scan,
               "rule": {"spread_m": 0.5, "cluster_weight": 0.9, "hold": 10}, "wall_s": result.wall_s}
-    return pose, report
+    return scan, result.trajectory[scan], report
+
+
+PER_LOG_ARRAYS = ("angles", "odom_times", "odom_readings", "laser_offset")
+
+
+def from_scan(log, first: int):
+    """The log from scan ``first`` on (every per-scan array cut; a log dataclass)."""
+    scans = np.asarray(log.ranges).shape[0]
+    cut = {}
+    for item in dataclasses.fields(log):
+        value = getattr(log, item.name)
+        if item.name not in PER_LOG_ARRAYS and isinstance(value, np.ndarray) and value.ndim and \
+                value.shape[0] == scans:
+            cut[item.name] = value[first:]
+    return dataclasses.replace(log, **cut)
 
 
 # --------------------------------------------------------------------------- live view (Rerun)
@@ -426,8 +441,8 @@ def run(
     starts from, so that the run continues it (:mod:`jaxslam.grid.startmap`);
     ``initial_pose`` ``(x, y, theta)`` places the first scan in it (default: the saved
     run's last pose where ``map.npz`` records it, else ``(0, 0, 0)``);
-    ``localize_first`` finds that pose by Monte Carlo localization on the first scans
-    (:func:`localized_start`).
+    ``localize_first`` localizes the first scans in the map (:func:`localized_start`)
+    and maps from the last of them on.
 
     With ``checkpoint_every`` the full filter state is saved atomically to
     ``out/checkpoint.npz`` every that many steps; ``resume`` continues from it (and

@@ -150,3 +150,19 @@ def test_a_simulated_map_continued_on_its_log_stays_on_the_saved_path(tmp_path):
     dy = int(round((first.origin[1] - again.origin[1]) / first.resolution))
     dx = int(round((first.origin[0] - again.origin[0]) / first.resolution))
     assert np.mean(again.map_log_odds[rows + dy, cols + dx] > 0) > 0.95
+
+
+def test_a_log_cut_from_a_scan_keeps_every_per_scan_array_in_step():
+    from jaxslam.app.runs import from_scan
+    from jaxslam.datasets.laser_sim import simulate
+
+    log = simulate(width=6.0, height=4.0, rooms_x=1, laps=0.2, num_beams=31, seed=1)
+    cut = from_scan(log, 5)
+    scans = log.ranges.shape[0]
+    assert cut.ranges.shape[0] == scans - 5
+    np.testing.assert_array_equal(cut.scan_times, log.scan_times[5:])
+    np.testing.assert_array_equal(cut.odom_poses, log.odom_poses[5:])
+    np.testing.assert_array_equal(cut.valid, log.valid[5:])
+    np.testing.assert_array_equal(cut.angles, log.angles)
+    if getattr(log, "true_poses", None) is not None:
+        np.testing.assert_array_equal(cut.true_poses, log.true_poses[5:])
