@@ -533,7 +533,7 @@ def run(
         run_args["mixed_geometry"] = mixed_geometry
     grid = _start_map(start_map, initial_pose, localize_first, kind, algorithm)
     if grid is not None:
-        run_args["start_map"] = str(Path(start_map).resolve())
+        run_args["start_map"] = str(Path(grid.source).resolve())
         if initial_pose is not None:
             run_args["initial_pose"] = [float(v) for v in initial_pose]
         if localize_first:

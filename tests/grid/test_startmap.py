@@ -166,3 +166,25 @@ def test_a_log_cut_from_a_scan_keeps_every_per_scan_array_in_step():
     np.testing.assert_array_equal(cut.angles, log.angles)
     if getattr(log, "true_poses", None) is not None:
         np.testing.assert_array_equal(cut.true_poses, log.true_poses[5:])
+
+
+@pytest.mark.long
+def test_the_command_line_continues_a_simulated_run_from_its_folder(tmp_path, capsys):
+    import json
+
+    first, again = tmp_path / "first", tmp_path / "again"
+    assert run_cli("run", "--dataset", "sim-laser", "--max-steps", "6", "--particles", "4", "--no-progress",
+                   "--no-plots", "--out", str(first)) in (0, None)
+    start = np.loadtxt(first / "trajectory.tum")[0]
+    assert np.load(first / "map.npz")["pose"].shape == (3,)
+    pose = [str(start[1]), str(start[2]), str(2.0 * np.arctan2(start[6], start[7]))]
+    assert run_cli("run", "--dataset", "sim-laser", "--max-steps", "6", "--particles", "4", "--no-progress",
+                   "--no-plots", "--start-map", str(first), "--initial-pose", *pose, "--out", str(again)) in (0, None)
+    summary = json.loads((again / "summary.json").read_text())
+    assert summary["start_map"]["pose_from"] == "--initial-pose"
+    assert json.loads((again / "run.json").read_text())["start_map"] == str((first / "map.npz").resolve())
+    a, b = np.loadtxt(first / "trajectory.tum"), np.loadtxt(again / "trajectory.tum")
+    count = min(len(a), len(b))
+    assert np.hypot(*(a[:count, 1:3] - b[:count, 1:3]).T).max() < 0.15
+    saved, continued = load_map(first), load_map(again)
+    assert continued.origin[0] <= saved.origin[0] and continued.origin[1] <= saved.origin[1]
