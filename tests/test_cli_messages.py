@@ -71,6 +71,10 @@ def test_help_states_the_defaults_the_code_uses():
     assert f"default {DEFAULT_KEYFRAMES[2]:g}: off" in option_help("jaxslam run", "--temporal-update")
     assert f"{DEFAULT_CHUNK} scans for laser data" in option_help("jaxslam run", "--chunk")
     assert "(default: 20)" in option_help("jaxslam calibrate", "--particles")
+    from jaxslam.app.runs import LOCALIZE_PARTICLES, LOCALIZE_SCANS
+
+    assert f"({LOCALIZE_PARTICLES} particles, the first {LOCALIZE_SCANS} scans" in option_help("jaxslam run",
+                                                                                               "--localize-first")
 
 
 def test_loop_closure_help_states_the_searchs_configured_reach():

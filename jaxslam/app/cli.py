@@ -165,6 +165,17 @@ def build_parser() -> argparse.ArgumentParser:
                           "per m of odometry since the last one), and take a clearly better pose (closes large "
                           "loops that come back metres off the old map; a closure whose beams keep ending in known free space over "
                           "the next 5 m is undone). Default: on for srupf-gm, off for the GMapping-style filter")
+    run.add_argument("--start-map", type=Path, default=None, metavar="DIR|map.npz|map.yaml",
+                     help="grid filters: continue a saved map (a run folder, its map.npz, or a ROS map_server "
+                          "YAML at the run's 0.05 m cells): every particle starts from it, and the map written "
+                          "covers it and this log")
+    run.add_argument("--initial-pose", type=float, nargs=3, default=None, metavar=("X", "Y", "THETA"),
+                     help="with --start-map: the first scan's pose in the map's frame (m, m, rad); default: the "
+                          "saved run's last pose where its map.npz records it, else 0 0 0")
+    run.add_argument("--localize-first", action="store_true",
+                     help="with --start-map: localize the log's first scans in the map by Monte Carlo "
+                          "localization from a uniform start over its free space (20000 particles, the first 300 "
+                          "scans; exits if it does not converge), then map from the last of them on")
     run.add_argument("--list-params", action="store_true", help="print the algorithm's parameters and exit")
     run.add_argument("--float64", action="store_true", help="run in double precision (default float32)")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="N",
@@ -341,6 +352,7 @@ def run_from_args(args: argparse.Namespace) -> dict[str, Any] | None:
         rerun=args.rerun, rerun_spawn=args.rerun_spawn,
         max_range=args.max_range, threads=args.threads, loop_closure=args.loop_closure,
         max_odometry_step=args.max_odometry_step, mixed_geometry=args.mixed_geometry,
+        start_map=args.start_map, initial_pose=args.initial_pose, localize_first=args.localize_first,
     )
 
 

@@ -45,17 +45,17 @@ def add_parser(sub, positive_int, nonneg_int) -> None:
 def run(args) -> dict[str, Any]:
     """Write the bag; what was written (path, ROS version, storage, topics, scans, span)."""
     from jaxslam.app.errors import RunError
-    from jaxslam.app.runs import _is_bag, _load_log, resolve_dataset
+    from jaxslam.app.data import is_bag, load_log, resolve_dataset
     from jaxslam.datasets.rosbag_write import write_rosbag
 
     info, path, kind = resolve_dataset(args.dataset, None)
-    if kind != "laser" or (path is not None and _is_bag(path)):
+    if kind != "laser" or (path is not None and is_bag(path)):
         raise RunError(f"--dataset {args.dataset!r}: export-bag writes laser logs (a laser dataset name or a "
                        f"CARMEN log); this is {'a ROS bag already' if kind == 'laser' else f'{kind} data'}")
     out = Path(args.out)
     if out.exists():
         raise RunError(f"--out {str(out)!r} already exists; give a new name")
-    log, _ = _load_log(info, path, args.seed, None, None)
+    log, _ = load_log(info, path, args.seed, None, None)
     scans = min(log.num_scans, args.max_scans or log.num_scans)
     version = 1 if out.suffix == ".bag" else 2
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -20,6 +20,7 @@ layout with it.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -126,7 +127,7 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
 def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, progress, chunk, dtype,
              checkpoint=None, keyframes=None, bag=None, viz=None, max_range=None, prefetch=False, loop_closure=None,
-             max_odometry_step=None, mixed_geometry=None):
+             max_odometry_step=None, mixed_geometry=None, start_map=None, initial_pose=None, localize_first=False):
     """Run a grid filter on a laser log and score it: ``(summary, arrays, write_files)``,
     the figures' data (:func:`jaxslam.app.outputs.grid_arrays`) and a function that writes
     the run's files. ``prefetch``: import the plotting module on a thread once the log
@@ -144,6 +145,12 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     load_s = time.perf_counter() - loading
     if prefetch:
         prefetch_plotting()
+    start = {}
+    if start_map is not None:
+        start = {"start_map": start_map, "initial_pose": initial_pose}
+        if localize_first:
+            first, start["initial_pose"], localized = localized_start(log, start_map, seed)
+            log = from_scan(log, first)
     live = None
     if viz is not None:
         live = _grid_live_log(viz, log, chunk)
@@ -154,7 +161,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
             config=None if loop_closure is None else {"closure": bool(loop_closure)},
             progress=progress, max_keyframes=max_steps, dtype=dtype, **({"chunk": chunk} if chunk else {}),
             **({"checkpoint": checkpoint} if checkpoint is not None else {}),
-            **{f"{k}_update": v for k, v in (keyframes or {}).items()},
+            **{f"{k}_update": v for k, v in (keyframes or {}).items()}, **start,
         )
     except PoolLimitError as err:
         raise RunError(f"--particles {particles}: {err}") from None
@@ -177,12 +184,91 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
         "odometry_repair": getattr(log, "odometry_repair", {}), "log_checks": log_checks,
     }
+    if start_map is not None:
+        summary["start_map"] = {"map": str(start_map.source), "shape": list(start_map.shape),
+                                "origin": list(start_map.origin),
+                                "initial_pose": [float(v) for v in result.trajectory[0]],
+                                "pose_from": ("localization" if localize_first else
+                                              "--initial-pose" if initial_pose is not None else
+                                              "the saved run's last pose" if start_map.pose is not None else
+                                              "the map frame's origin")}
+        if localize_first:
+            summary["start_map"]["localization"] = localized
     if path is not None and is_bag(path):
         summary["bag"] = dict(log.params)  # the topics and frames used
     summary.update(score_grid_run(info, result, log))
     arrays = grid_arrays(result, title=f"{algorithm}, {name}, {particles} particles")
     comment = f"jaxslam {algorithm} on {name}, {particles} particles, seed {seed}"
     return summary, arrays, lambda: write_grid_outputs(out, result, arrays, comment)
+
+
+# --------------------------------------------------------------------------- continuing a saved map
+
+LOCALIZE_PARTICLES = 20000  # --localize-first: MCL's capacity (the number in use adapts)
+LOCALIZE_SCANS = 300  # ... and the first scans it may take to converge
+
+
+def _start_map(start_map, initial_pose, localize_first: bool, kind: str, algorithm: str):
+    """The saved map of ``--start-map``, read and checked before anything runs, or None."""
+    if start_map is None:
+        if initial_pose is not None or localize_first:
+            raise RunError("--initial-pose and --localize-first need --start-map")
+        return None
+    if kind != "laser":
+        raise RunError(f"--start-map applies to the grid filters (laser data), not {algorithm!r}")
+    if initial_pose is not None and localize_first:
+        raise RunError("--initial-pose and --localize-first exclude each other")
+    if initial_pose is not None and (len(initial_pose) != 3 or not np.all(np.isfinite(initial_pose))):
+        raise RunError(f"--initial-pose {list(initial_pose)}: must be three finite numbers (x y theta)")
+    from jaxslam.grid.experiment import RESOLUTION
+    from jaxslam.grid.mapfile import load_map
+    from jaxslam.grid.startmap import StartMapError, check_start_map
+
+    grid = load_map(start_map, require_free=localize_first)
+    try:
+        check_start_map(grid, RESOLUTION)
+    except StartMapError as err:
+        raise RunError(f"--start-map {err}") from None
+    return grid
+
+
+def localized_start(log, grid, seed: int, particles: int = LOCALIZE_PARTICLES, scans: int = LOCALIZE_SCANS):
+    """``(scan, pose, report)``: where mapping starts after Monte Carlo localization
+    from a uniform start over the map's free space
+    (:func:`jaxslam.localization.experiment.localize`) on the first ``scans`` scans.
+
+    The cloud has converged by the localizer's own rule
+    (:func:`jaxslam.localization.experiment.self_convergence`: within 0.5 m, holding
+    90 % of the weight, at 10 measurements in a row); it then keeps tracking to the
+    last of those scans, whose estimate starts the mapping there. A
+    :class:`~jaxslam.app.errors.RunError` if the cloud does not converge."""
+    from jaxslam.localization.experiment import localize, self_convergence
+
+    result = localize(log, grid, particles=particles, seed=seed, max_steps=scans, snapshots=0)
+    first = self_convergence(result)
+    if first is None:
+        raise RunError(f"--localize-first: the localization in {str(grid.source)!r} did not converge in the first "
+                       f"{result.trajectory.shape[0]} scans of the log (no cloud within 0.5 m holding 90 % of the "
+                       "weight at 10 measurements in a row); give --initial-pose")
+    scan = int(result.trajectory.shape[0] - 1)  # localize's step s is scan s
+    report = {"particles": particles, "converged_scan": int(first), "start_scan": scan,
+              "rule": {"spread_m": 0.5, "cluster_weight": 0.9, "hold": 10}, "wall_s": result.wall_s}
+    return scan, result.trajectory[scan], report
+
+
+PER_LOG_ARRAYS = ("angles", "odom_times", "odom_readings", "laser_offset")
+
+
+def from_scan(log, first: int):
+    """The log from scan ``first`` on (every per-scan array cut; a log dataclass)."""
+    scans = np.asarray(log.ranges).shape[0]
+    cut = {}
+    for item in dataclasses.fields(log):
+        value = getattr(log, item.name)
+        if item.name not in PER_LOG_ARRAYS and isinstance(value, np.ndarray) and value.ndim and \
+                value.shape[0] == scans:
+            cut[item.name] = value[first:]
+    return dataclasses.replace(log, **cut)
 
 
 # --------------------------------------------------------------------------- live view (Rerun)
@@ -233,8 +319,19 @@ def run(
     loop_closure: bool | None = None,
     max_odometry_step: float | None = None,
     mixed_geometry: str | None = None,
+    start_map: str | Path | None = None,
+    initial_pose=None,
+    localize_first: bool = False,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
+
+    ``start_map`` (grid filters): a saved map (a run folder, ``map.npz`` or a
+    ``map_server`` YAML, :func:`jaxslam.grid.mapfile.load_map`) that every particle
+    starts from, so that the run continues it (:mod:`jaxslam.grid.startmap`);
+    ``initial_pose`` ``(x, y, theta)`` places the first scan in it (default: the saved
+    run's last pose where ``map.npz`` records it, else ``(0, 0, 0)``);
+    ``localize_first`` localizes the first scans in the map (:func:`localized_start`)
+    and maps from the last of them on.
 
     With ``checkpoint_every`` the full filter state is saved atomically to
     ``out/checkpoint.npz`` every that many steps; ``resume`` continues from it (and
@@ -323,6 +420,13 @@ def run(
         if kind != "laser" or (info is not None and info.simulated) or (path is not None and is_bag(path)):
             raise RunError("--mixed-geometry applies to CARMEN logs only")
         run_args["mixed_geometry"] = mixed_geometry
+    grid = _start_map(start_map, initial_pose, localize_first, kind, algorithm)
+    if grid is not None:
+        run_args["start_map"] = str(Path(grid.source).resolve())
+        if initial_pose is not None:
+            run_args["initial_pose"] = [float(v) for v in initial_pose]
+        if localize_first:
+            run_args["localize_first"] = True
     if kind == "laser" and max_steps is not None and max_steps < 2:
         raise RunError(f"--max-steps {max_steps}: a laser run needs at least 2 keyframes")
     if loop_closure is not None and kind != "laser":
@@ -387,9 +491,11 @@ def _run_and_write(out, stage, run_args, info, path, kind, algorithm, particles,
         extra["max_range"] = float(max_range)
     if loop_closure is not None:
         extra["loop_closure"] = bool(loop_closure)
-    for name in ("max_odometry_step", "mixed_geometry"):
+    for name in ("max_odometry_step", "mixed_geometry", "initial_pose", "localize_first"):
         if name in run_args:
             extra[name] = run_args[name]
+    if "start_map" in run_args:
+        extra["start_map"] = _start_map(run_args["start_map"], None, False, kind, algorithm)
     if bag:
         extra["bag"] = bag
     viz = _open_viz(rerun, rerun_spawn, Path(dataset_name).name)

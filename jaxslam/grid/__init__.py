@@ -20,6 +20,7 @@ Modules:
 * :mod:`~jaxslam.grid.mapfile` — the lossless ``map.npz`` and :func:`~jaxslam.grid.mapfile.load_map` (it, a
   run folder or any ROS map_server YAML).
 * :mod:`~jaxslam.grid.map_server` — ROS map_server maps read as ``map_server`` reads them.
+* :mod:`~jaxslam.grid.startmap` — a saved map as every particle's starting map (``jaxslam run --start-map``).
 * :mod:`~jaxslam.grid.experiment` — :func:`~jaxslam.grid.experiment.run_grid_slam` on a CARMEN log.
 """
 

@@ -137,8 +137,20 @@ def _init(key, params, config: GridSlamConfig, first_scan, initial_pose):
     return compile_runner(runner, *args)[0](*args)
 
 
-def init_state(key, params, config: GridSlamConfig, first_scan, initial_pose, stats: RunStats, progress=False):
-    """``init`` with the layout grown until the first scan fits: ``(state, config)``."""
+def init_state(key, params, config: GridSlamConfig, first_scan, initial_pose, stats: RunStats, progress=False,
+               start=None):
+    """``init`` with the layout grown until the first scan fits: ``(state, config)``.
+
+    ``start``: one particle's maps to start from (a saved map,
+    :func:`jaxslam.grid.startmap.paged_start`); they grow with the layout."""
+    if start is not None:
+        while True:
+            state = init(key, params, config, first_scan, initial_pose, start)
+            if int(state.status.code) == 0:
+                return state, config
+            grown, layout = _grown(state._replace(maps=start), config.layout, stats, 0, progress)
+            start = grown.maps
+            config = dataclasses.replace(config, layout=layout)
     while True:
         state = _init(key, params, config, first_scan, initial_pose)
         if int(state.status.code) == 0:
@@ -165,6 +177,7 @@ def run_filter(
     progress: bool = True,
     checkpoint=None,
     unit: str = "keyframe",
+    start=None,
 ):
     """Run a grid filter over steps 1..T (keyframes, or every scan with a per-scan
     step; step 0 is ``first_scan``).
@@ -186,7 +199,7 @@ def run_filter(
         template = jax.eval_shape(lambda: init(init_key, params, config, first_scan, initial_pose))
         state = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), template)
     else:
-        state, config = init_state(init_key, params, config, first_scan, initial_pose, stats, progress)
+        state, config = init_state(init_key, params, config, first_scan, initial_pose, stats, progress, start)
     start, prior = 0, None
     while True:
         if checkpoint is not None:

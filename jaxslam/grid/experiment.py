@@ -28,7 +28,9 @@ from jaxslam.datasets.registry import algorithms, load_dataset_log
 from jaxslam.grid import gmapping, srupf
 from jaxslam.grid.driver import DEFAULT_CHUNK, recompilations, run_filter
 from jaxslam.grid.filter import best_particle
+from jaxslam.grid.mapfile import OccupancyMap
 from jaxslam.grid.paged import PagedLayout, PoolLimitError, pool_stats, stitch, window_side
+from jaxslam.grid.startmap import paged_start, start_cells, start_layout
 from jaxslam.grid.types import (
     DEFAULT_KEYFRAMES,
     GridSlamConfig,
@@ -255,6 +257,10 @@ def make_config(
     return GridSlamConfig(particles, layout, num_beams, max_points, **base)
 
 
+RESOLUTION = 0.05
+"""Cell size (m) of a run's maps by default (:func:`run_grid_slam`'s ``resolution``)."""
+
+
 def run_grid_slam(
     log_or_sim: CarmenLog | str | os.PathLike,
     algorithm: str = "srupf-gm",
@@ -267,7 +273,7 @@ def run_grid_slam(
     linear_update: float | None = None,
     angular_update: float | None = None,
     temporal_update: float | None = None,
-    resolution: float = 0.05,
+    resolution: float = RESOLUTION,
     margin: float | None = None,
     bounds: tuple[float, float, float, float] | None = None,
     pool_slots: int | None = None,
@@ -275,6 +281,8 @@ def run_grid_slam(
     dtype=jnp.float32,
     chunk: int = DEFAULT_CHUNK,
     checkpoint: Any = None,
+    start_map: OccupancyMap | None = None,
+    initial_pose=None,
 ) -> GridSlamResult:
     """Run ``algorithm`` on a log and collect trajectory, map and diagnostics.
 
@@ -314,6 +322,13 @@ def run_grid_slam(
             the result does not depend on it.
         checkpoint: a :class:`jaxslam.runtime.checkpoint.Checkpoint` to save the state every N
             scans and/or resume from it (see :func:`jaxslam.runtime.progress.run_scan_chunked`).
+        start_map: a saved map (:func:`jaxslam.grid.mapfile.load_map`) that every
+            particle starts from (:mod:`jaxslam.grid.startmap`); the trajectory and the
+            map are then in its frame.
+        initial_pose: ``(x, y, theta)`` of the first scan. ``None``: the log's first
+            odometry pose, or with ``start_map`` the saved run's last pose where the
+            map records it (:attr:`~jaxslam.grid.mapfile.OccupancyMap.pose`), else
+            ``(0, 0, 0)``.
     """
     name = _dataset_name(log_or_sim)
     log = log_or_sim if isinstance(log_or_sim, CarmenLog) else load_dataset_log(log_or_sim)
@@ -351,9 +366,17 @@ def run_grid_slam(
     window_range = float(cfg_over.pop("window_range", max(20.0, 10.0 * np.ceil(usable / 10.0))))
     if margin is None:
         margin = window_range + 10.0
+    if initial_pose is None:
+        initial_pose = odom[0] if start_map is None else (start_map.pose if start_map.pose is not None else (0, 0, 0))
+    initial_pose = np.asarray(initial_pose, np.float64).reshape(3)
     layout = map_layout(log, np.arange(scans), resolution, margin, particles, window_range, bounds)
     if pool_slots is not None:
         layout = dataclasses.replace(layout, slots=int(pool_slots))
+    start = None
+    if start_map is not None:
+        start_steps = start_cells(start_map, resolution, float(prm.log_odds_unit), float(prm.l_max))
+        layout = start_layout(start_steps, start_map, layout, odom, initial_pose, margin)
+        start = paged_start(start_steps, layout)
     max_points = cfg_over.pop("max_points", None)
     if max_points is None:
         need = required_points(np.minimum(ranges, usable), valid, resolution)
@@ -371,9 +394,9 @@ def run_grid_slam(
     unit = float(prm.log_odds_unit)
     params_record = {k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"}
     state, ys, cfg, stats = run_filter(
-        module.step, seed_key(seed), prm, cfg, first, np.asarray(odom[0], real), controls,
+        module.step, seed_key(seed), prm, cfg, first, np.asarray(initial_pose, real), controls,
         observations, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress,
-        checkpoint=checkpoint, unit="scan",
+        checkpoint=checkpoint, unit="scan", start=start,
     )
     state = jax.tree_util.tree_map(np.asarray, state)  # once, to the host: best particle, map, result
     best = int(best_particle(state))
@@ -383,8 +406,8 @@ def run_grid_slam(
     # a closure still watched at the end is judged on the scans it had (the undo row after the last scan's)
     end_undo = judge_at_end(state.closure_memory, prm)
     undo = reported_undo(ys["track_undo"], end_undo)
-    keyframes, trajectory = scan_trajectory(odom[0], flags, kf_poses, ys["motion"], undo)
-    kf_poses = take_back(np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0), keyframes, undo)
+    keyframes, trajectory = scan_trajectory(initial_pose, flags, kf_poses, ys["motion"], undo)
+    kf_poses = take_back(np.concatenate([initial_pose[None], np.asarray(kf_poses, np.float64)], 0), keyframes, undo)
     cells, origin = stitch(state.maps.pool, state.maps.tables[best], state.maps.corner, cfg.layout)
     grid = cells.astype(np.float32) * unit
     info = {k: np.asarray(v)[kf_rows] for k, v in ys.items() if k not in PER_SCAN_KEYS}
@@ -420,6 +443,7 @@ def run_grid_slam(
 __all__ = [
     "ALGORITHMS",
     "DEFAULT_KEYFRAMES",
+    "RESOLUTION",
     "GridSlamResult",
     "best_trajectory",
     "closure_default",

@@ -216,7 +216,8 @@ def integrate_scan(maps, poses: Array, observation: Scan, params: GridSlamParams
     )
 
 
-def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observation: Scan, initial_pose: Array):
+def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observation: Scan, initial_pose: Array,
+          start=None):
     del key  # the initial state is deterministic; the key keeps the protocol's signature
     dtype = params.beam_angles.dtype
     n = config.num_particles
@@ -224,7 +225,7 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
     # The barrier keeps XLA from constant-folding the empty maps through the first
     # write (a cumulative sum over every free slot, which took seconds to fold at
     # compile time for large pools).
-    one = jax.lax.optimization_barrier(init_maps(1, config.layout))
+    one = jax.lax.optimization_barrier(init_maps(1, config.layout) if start is None else start)
     one, _, status = integrate_scan(one, pose[None], observation, params, config)
     tables = jnp.broadcast_to(one.tables, (n, one.tables.shape[1]))
     maps = resample_maps(one._replace(tables=tables), jnp.arange(n), jnp.asarray(True))
@@ -249,14 +250,17 @@ def init(
     config: GridSlamConfig,
     observation: Scan,
     initial_pose: Array,
+    start=None,
 ) -> GridSlamState:
     """All particles at ``initial_pose`` sharing one map built from the first scan.
 
-    The pose factor starts at ``diag(params.initial_std)``. Jitted (one compilation
+    ``start``: one particle's :class:`~jaxslam.grid.paged.PagedMaps` (a saved map,
+    :func:`jaxslam.grid.startmap.paged_start`) that the first scan is written into, in
+    place of empty maps; every particle then shares its tiles. The pose factor starts at ``diag(params.initial_std)``. Jitted (one compilation
     per config). If the first scan does not fit the layout, ``status`` says so and the
     caller grows the layout (:func:`jaxslam.grid.paged.grow`) and calls again.
     """
-    return _init(key, params, config, observation, initial_pose)
+    return _init(key, params, config, observation, initial_pose, start)
 
 
 def finish_step(

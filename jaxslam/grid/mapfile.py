@@ -63,6 +63,8 @@ class OccupancyMap:
         tile: side in cells of the paged maps' tiles (jaxslam maps), else None.
         occupied_thresh, free_thresh: the thresholds that made ``occupancy``.
         source: the file read.
+        pose: ``(x, y, theta)`` the saved run's last pose (jaxslam maps that record
+            it), where ``jaxslam run --start-map`` continues by default; else None.
     """
 
     occupancy: np.ndarray
@@ -75,6 +77,7 @@ class OccupancyMap:
     occupied_thresh: float = 0.65
     free_thresh: float = 0.196
     source: Path | None = None
+    pose: tuple[float, float, float] | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -119,6 +122,7 @@ def save_map_npz(
     tile: int | None = None,
     occupied_thresh: float = 0.65,
     free_thresh: float = 0.196,
+    pose=None,
 ) -> Path:
     """Write a map losslessly as ``.npz`` (compressed, written atomically).
 
@@ -134,6 +138,7 @@ def save_map_npz(
             place of the floats.
         tile: side in cells of the paged maps' tiles, recorded with the layout.
         occupied_thresh, free_thresh: the ``map_server`` thresholds of the map's image.
+        pose: ``(x, y, theta)`` the run's last pose, recorded with the map.
     """
     log_odds = np.asarray(log_odds)
     if log_odds.ndim != 2:
@@ -152,6 +157,8 @@ def save_map_npz(
         arrays.update(cells=cells, log_odds_unit=np.float64(log_odds_unit))
     if tile is not None:
         arrays["tile"] = np.int64(tile)
+    if pose is not None:
+        arrays["pose"] = np.asarray(pose, np.float64).reshape(3)
     path = Path(path)
     partial = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
     try:
@@ -211,10 +218,16 @@ def _read_npz(path: Path) -> OccupancyMap:
     with np.errstate(over="ignore"):
         prob = 1.0 / (1.0 + np.exp(-log_odds.astype(np.float64)))
     tile = int(arrays["tile"]) if "tile" in arrays else None
+    pose = None
+    if "pose" in arrays:
+        pose_array = np.asarray(arrays["pose"])
+        if pose_array.shape != (3,) or pose_array.dtype.kind != "f" or not np.all(np.isfinite(pose_array)):
+            raise DataFormatError(path, None, f"pose must be three finite numbers, got {pose_array.tolist()!r}")
+        pose = tuple(float(v) for v in pose_array)
     return OccupancyMap(
         occupancy=threshold_values(prob, occ_th, free_th), resolution=resolution, origin=origin,
         log_odds=log_odds, cells=cells, log_odds_unit=unit, tile=tile, occupied_thresh=occ_th,
-        free_thresh=free_th, source=path,
+        free_thresh=free_th, source=path, pose=pose,
     )
 
 
