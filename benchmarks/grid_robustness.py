@@ -16,6 +16,16 @@ modes:
 * the scan indices of the ten worst relations (``worst``), to find the place, and the
   scans of the five largest jumps (``jump_keyframes``).
 
+The summary (:func:`summarize`, per log and filter) gives the worst seed and, for the
+tail of a log's seeds, the median seed's mean relations error and the share of seeds
+whose mean exceeds :data:`TAIL_FACTOR` times it (``tail_share``), beside the worst
+relation over every seed (``worst_max_m``). The runs are chaotic: another CPU compiles
+another program and draws other runs from the same seeds. ``--code-split 8,32`` runs
+every jaxslam run once per value of XLA's ``xla_cpu_parallel_codegen_split_count``
+(jaxslam fixes it, :mod:`jaxslam.runtime.compiler`; another value compiles another
+program from the same code, a stand-in for another CPU's), and the summary has one
+row per value, so a tail that belongs to one program's draw shows as such.
+
 Logs:
 
 * ``raw``: the raw benchmark logs in ``carmen_raw/`` (intel, fr079 and mit-killian are
@@ -83,6 +93,9 @@ JAX_FILTERS = ("srupf-gm", "gmapping")
 FILTERS = (*JAX_FILTERS, "gmapping-cpp")
 SHORT_S = 1.0
 JUMP_M = 0.3
+TAIL_FACTOR = 2.0
+"""A seed is in a log's tail when its mean relations error exceeds this times the median seed's."""
+SPLIT_OPTION = "xla_cpu_parallel_codegen_split_count"
 # Least share of a perturbed log's scans that must be found in the raw log to score it on
 # the raw log's benchmark relations.
 BENCH_MIN_FOUND = 0.95
@@ -147,9 +160,20 @@ def worker(spec: dict) -> dict:
     return record
 
 
-def run_worker(spec: dict, timeout: float) -> dict:
+def split_flags(flags: str, split: int | None) -> str:
+    """``XLA_FLAGS`` for a worker that compiles with ``split`` parts (None: ``flags`` as
+    they are, jaxslam's fixed option, :data:`jaxslam.runtime.compiler.OPTIONS`)."""
+    if split is None:
+        return flags
+    return f"{flags} --{SPLIT_OPTION}={int(split)}".strip()
+
+
+def run_worker(spec: dict, timeout: float, split: int | None = None) -> dict:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    flags = split_flags(env.get("XLA_FLAGS", ""), split)
+    if flags:
+        env["XLA_FLAGS"] = flags
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", json.dumps(spec)]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
@@ -346,7 +370,18 @@ def main(argv: list[str] | None = None) -> int:
                              'fields to run on jaxslam.grid.laser_odometry.laser_corrected_log; repeatable; '
                              'default: the defaults)')
     parser.add_argument("--work", default="/tmp/grid_robustness", help="scratch folder (logs, trajectories)")
+    parser.add_argument("--code-split", default="", metavar="N[,N]",
+                        help=f"run every jaxslam run once per value of XLA's {SPLIT_OPTION} (e.g. 8,32; "
+                             "default: jaxslam's fixed value only), one summary row per value")
     args = parser.parse_args(argv)
+    try:
+        splits = [int(v) for v in args.code_split.split(",") if v.strip()]
+    except ValueError:
+        parser.error(f"--code-split {args.code_split!r}: want positive integers, comma separated")
+    if any(v < 1 for v in splits):
+        parser.error(f"--code-split {args.code_split!r}: want positive integers, comma separated")
+    if splits and f"--{SPLIT_OPTION}" in os.environ.get("XLA_FLAGS", ""):
+        parser.error(f"--code-split: XLA_FLAGS already sets {SPLIT_OPTION}")
 
     from _common import machine_info, print_table
     from gmapping_cpp import GMappingNotBuiltError, GMappingRunError, find_gmapping, run_gmapping
@@ -377,8 +412,14 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"--variant {item!r}: want NAME=JSON with keys 'params', 'config', 'laser_odometry'")
         variants.append((name, settings))
     variants = variants or [("", {})]
-    runs = [(f, "", {}) for f in filters if f == "gmapping-cpp"]
-    runs = [(f, v, settings) for f in filters if f != "gmapping-cpp" for v, settings in variants] + runs
+    from jaxslam.runtime.compiler import OPTIONS
+
+    fixed = int(OPTIONS[SPLIT_OPTION])
+    # the fixed value runs as jaxslam compiles it; another one through XLA_FLAGS
+    code_splits = [(v, None if v == fixed else v) for v in splits] or [(None, None)]
+    runs = [(f, "", {}, None, None) for f in filters if f == "gmapping-cpp"]
+    runs = [(f, v, settings, split, flag) for f in filters if f != "gmapping-cpp" for v, settings in variants
+            for split, flag in code_splits] + runs
 
     payload: dict[str, Any] = {
         "machine": machine_info(),
@@ -390,13 +431,16 @@ def main(argv: list[str] | None = None) -> int:
     rows = payload["runs"]
     for entry in entries:
         log = entry["carmen"]
-        for algorithm, variant, settings in runs:
+        for algorithm, variant, settings, split, split_flag in runs:
             label = f"{algorithm}[{variant}]" if variant else algorithm
             tag = f"{entry['log']}_{label}_s{entry['seed']}".replace("[", "_").replace("]", "")
+            tag += "" if split is None else f"_split{split}"
             row: dict[str, Any] = {"log": entry["log"], "kind": entry["kind"], "seed": entry["seed"],
                                    "filter": label, "variant": variant, "settings": settings,
                                    "particles": args.particles,
                                    "scans": log.num_scans, "load_avg": os.getloadavg()[0]}
+            if split is not None:
+                row["code_split"] = split
             if entry.get("stamps_replaced"):
                 row["stamps_replaced"] = entry["stamps_replaced"]
             print(f"[{time.strftime('%H:%M:%S')}] {tag} ...", file=sys.stderr, flush=True)
@@ -421,7 +465,7 @@ def main(argv: list[str] | None = None) -> int:
                             "laser_odometry": settings.get("laser_odometry"),
                             "out": str(work / f"{tag}.npz"),
                             "map_png": None if args.no_maps else str(maps_dir / f"{tag}.png")}
-                    rec = run_worker(spec, args.timeout)
+                    rec = run_worker(spec, args.timeout, split_flag)
                     if "error" in rec:
                         raise RuntimeError(rec["error"])
                     data = np.load(spec["out"])
@@ -453,8 +497,10 @@ def main(argv: list[str] | None = None) -> int:
     print()
     summary = summarize(rows)
     payload["summary"] = summary
-    summary_columns = ["log", "filter", "seeds", "worst_mean_m", "mean_of_means_m", "worst_max_m",
-                       "over_0.5m_total", "worst_jump_m", "wall_s_mean", "cpu_s_mean"]
+    summary_columns = ["log", "filter", "seeds", "worst_mean_m", "mean_of_means_m", "median_seed_mean_m",
+                       "tail_share", "worst_max_m", "over_0.5m_total", "worst_jump_m", "wall_s_mean", "cpu_s_mean"]
+    if any("code_split" in r for r in summary):
+        summary_columns.insert(2, "code_split")
     if any("bench_worst_mean_m" in r for r in summary):
         summary_columns[6:6] = ["bench_worst_mean_m", "bench_mean_of_means_m"]
     print_table(summary, summary_columns)
@@ -463,19 +509,38 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def tail(means: list[float], factor: float = TAIL_FACTOR) -> tuple[float, float]:
+    """``(median, share)``: the median of the seeds' mean relations errors ``means`` and
+    the share of seeds whose mean exceeds ``factor`` times it."""
+    values = np.asarray(means, np.float64)
+    median = float(np.median(values))
+    return median, float(np.mean(values > factor * median))
+
+
 def summarize(rows: list[dict]) -> list[dict]:
-    """Per log and filter over seeds: the worst seed counts."""
+    """Per log, filter and code split (``code_split``, where the runs have one) over
+    seeds: the worst seed counts, and the tail (:func:`tail`)."""
     out = []
-    keys = sorted({(r["log"], r["filter"]) for r in rows},
-                  key=lambda k: (k[0], FILTERS.index(k[1].split("[")[0]), k[1]))
-    for log, algorithm in keys:
-        group = [r for r in rows if r["log"] == log and r["filter"] == algorithm and "error" not in r]
-        failed = sum(1 for r in rows if r["log"] == log and r["filter"] == algorithm and "error" in r)
+
+    def key(r: dict) -> tuple:
+        return r["log"], r["filter"], r.get("code_split")
+
+    keys = sorted({key(r) for r in rows},
+                  key=lambda k: (k[0], FILTERS.index(k[1].split("[")[0]), k[1], -1 if k[2] is None else k[2]))
+    for cell in keys:
+        log, algorithm, split = cell
+        group = [r for r in rows if key(r) == cell and "error" not in r]
+        failed = sum(1 for r in rows if key(r) == cell and "error" in r)
         item: dict[str, Any] = {"log": log, "filter": algorithm, "seeds": len(group), "failed_runs": failed}
+        if split is not None:
+            item["code_split"] = split
         if group and "mean_m" in group[0]:
+            median, share = tail([r["mean_m"] for r in group])
             item.update({
                 "worst_mean_m": max(r["mean_m"] for r in group),
                 "mean_of_means_m": float(np.mean([r["mean_m"] for r in group])),
+                "median_seed_mean_m": median,
+                "tail_share": share,
                 "worst_max_m": max(r["max_m"] for r in group),
                 "over_0.5m_total": sum(r["over_0.5m"] for r in group),
             })

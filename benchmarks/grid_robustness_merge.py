@@ -3,9 +3,11 @@
 A full suite (every log, both levels, 5 seeds, three filters) takes hours on a 2-core
 machine, so it is run in parts (``--tag``). This script reads the parts in the order
 given; a run of the same ``(log, filter, seed)`` in a later file replaces the earlier
-one (so a part re-run after a change of defaults supersedes the old runs), and every
+one (so a part re-run after a change of defaults supersedes the old runs; runs under
+another code split, ``grid_robustness.py --code-split``, are other runs), and every
 run keeps the name of the file it came from. It prints the per-run and per-cell
-tables (:func:`grid_robustness.summarize`: the worst seed counts), writes
+tables (:func:`grid_robustness.summarize`: the worst seed counts, and the share of
+seeds over twice the median seed), writes
 ``benchmarks/results/grid_robustness_merged[_NAME].json`` (``--out OUT``:
 ``OUT.json``) and a plot of the relations
 error of every seed, log by log, one marker per filter (logs without ground truth
@@ -70,12 +72,14 @@ def merge(sources: list[str | Path]) -> tuple[list[dict], list[str]]:
                     continue
                 if only[run["filter"]] != run["filter"]:
                     run = {**run, "filter": only[run["filter"]], "renamed_from": run["filter"]}
-            key = (run["log"], run["filter"], run["seed"])
+            key = (run["log"], run["filter"], run["seed"], run.get("code_split"))
             if key in by_key:
-                replaced.append(f"{key[0]} {key[1]} seed {key[2]}: {by_key[key]['source']} -> {path.name}")
+                split = "" if key[3] is None else f" code split {key[3]}"
+                replaced.append(f"{key[0]} {key[1]} seed {key[2]}{split}: {by_key[key]['source']} -> {path.name}")
             by_key[key] = {**run, "source": path.name}
     order = {f: i for i, f in enumerate(FILTERS)}
-    rows = sorted(by_key.values(), key=lambda r: (r["log"], order.get(r["filter"].split("[")[0], 99), r["seed"]))
+    rows = sorted(by_key.values(), key=lambda r: (r["log"], order.get(r["filter"].split("[")[0], 99),
+                                                  r.get("code_split") or 0, r["seed"]))
     return rows, replaced
 
 
@@ -111,17 +115,22 @@ def plot(rows: list[dict], path: Path) -> None:
 
 
 def markdown(summary: list[dict]) -> str:
-    """One Markdown row per log, one column per filter: on logs with relations the
-    mean of the seeds' means (worst seed), the worst relation and the count over 0.5 m
-    over every seed; elsewhere the largest keyframe correction over the seeds."""
-    filters = [f for f in FILTERS if any(s["filter"] == f for s in summary)]
+    """One Markdown row per log, one column per filter (and code split, where the runs
+    have one): on logs with relations the mean of the seeds' means (worst seed), the
+    worst relation and the count over 0.5 m over every seed; elsewhere the largest
+    keyframe correction over the seeds."""
+    splits = sorted({s.get("code_split") for s in summary}, key=lambda v: -1 if v is None else v)
+    filters = [(f, v) for f in FILTERS for v in splits
+               if any(s["filter"] == f and s.get("code_split") == v for s in summary)]
     logs = sorted({s["log"] for s in summary}, key=lambda log: ("worst_mean_m" not in next(
         s for s in summary if s["log"] == log), log))
-    lines = ["| log | " + " | ".join(filters) + " |", "|---|" + "---|" * len(filters)]
+    names = [f if v is None else f"{f}, code split {v}" for f, v in filters]
+    lines = ["| log | " + " | ".join(names) + " |", "|---|" + "---|" * len(filters)]
     for log in logs:
         cells = []
-        for name in filters:
-            item = next((s for s in summary if s["log"] == log and s["filter"] == name), None)
+        for name, split in filters:
+            item = next((s for s in summary if s["log"] == log and s["filter"] == name
+                         and s.get("code_split") == split), None)
             if item is None or not item["seeds"]:
                 cells.append("")
             elif "worst_mean_m" in item:
@@ -151,8 +160,11 @@ def main(argv: list[str] | None = None) -> int:
                        "wall_s", "source"])
     print()
     summary = summarize(rows)
-    print_table(summary, ["log", "filter", "seeds", "worst_mean_m", "mean_of_means_m", "worst_max_m",
-                          "over_0.5m_total", "wall_s_mean"])
+    columns = ["log", "filter", "seeds", "worst_mean_m", "mean_of_means_m", "median_seed_mean_m", "tail_share",
+               "worst_max_m", "over_0.5m_total", "wall_s_mean"]
+    if any("code_split" in s for s in summary):
+        columns.insert(2, "code_split")
+    print_table(summary, columns)
     if args.markdown:
         print()
         print(markdown(summary))

@@ -54,6 +54,15 @@ doors, repeated every few metres), not drift. The tracking then keeps of the
 closure's position correction only the part the scan constrains, as for any match
 (:func:`jaxslam.grid.tracking.constrained_pose`).
 
+**The map's offset** (``config.closure_map_bound``, off by default). A closure moves
+the pose, not the map already written, so the place a return matches may have been
+drawn before earlier closures moved the path, and be off by up to the sum
+:math:`\Sigma` of their corrections; the tracking itself drifts by about
+:math:`\gamma d` (``closure_reach_rate``). With the option the jump is bounded by
+:math:`\min(\beta d, \gamma d + \Sigma)` (:func:`closure_outcome`): before the first
+closure by the tracking's drift alone, where :math:`\beta d` lets an alias metres away
+pass after a hundred metres of travel.
+
 Why a jump bound and confirmation: a single scan's wide match finds aliases (a
 corridor's doors, repeated every few metres, or a stretch along a corridor's axis), and
 without the bound a run that took one went on jumping at the same place, metres every
@@ -186,7 +195,15 @@ FAST_SHARE = 0.2
 at least two scans watched: a robot standing still repeats one scan's conflict)."""
 
 MEMORY = 15
-"""Length of the state's ``closure_memory`` (:func:`closure_phases`)."""
+"""Length of the state's ``closure_memory`` (:func:`closure_phases`); one more with
+``config.closure_map_bound`` (:func:`memory_length`)."""
+
+
+def memory_length(config) -> int:
+    """Length of the state's ``closure_memory`` for ``config``: :data:`MEMORY`, and one
+    slot more with ``config.closure_map_bound``, the sum of the corrections the closures
+    kept so far (:func:`closure_outcome`)."""
+    return MEMORY + int(bool(getattr(config, "closure_map_bound", False)))
 
 
 def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation) -> tuple[Array, Array]:
@@ -485,9 +502,23 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
 
 def closure_outcome(carry: dict, count: Array, memory: Array,
                     params) -> tuple[Array, Array, Array, Array, Array, Array]:
-    """The local match after :func:`closure_phases` (``carry``), or the closure that
+    r"""The local match after :func:`closure_phases` (``carry``), or the closure that
     replaces it: ``(pose, score, closed, undo, conflict, memory)`` (see
-    :func:`closure_phases`)."""
+    :func:`closure_phases`).
+
+    A ``memory`` of :data:`MEMORY` + 1 slots (``config.closure_map_bound``,
+    :func:`memory_length`) also holds :math:`\Sigma`, the sum of the position
+    corrections :math:`|A_{xy}|` of the closures taken and not undone, and bounds the
+    jump by the map's own offset as well:
+
+    .. math:: |x^*_{xy} - x_{0,xy}| \le \max\big(j,\ \min(\beta d,\ \gamma d + \Sigma)\big)
+
+    (:math:`\gamma` = ``closure_reach_rate``). The tracking drifts by at most about
+    :math:`\gamma d` between closures; the place matched may have been drawn before
+    earlier closures moved the path, which can put it off by at most their sum. Before
+    the first closure the map is one drawing and the bound is the tracking's drift
+    alone, where an alias metres away (a corridor's doors) would pass the loose
+    :math:`\beta d`; right after a closure :math:`\beta d` stays the tighter bound."""
     watch, matched, score, travelled = carry["watch"], carry["matched"], carry["score"], carry["travelled"]
     dtype = matched.dtype
     holding, triggered, undo = watch.holding, carry["searching"], watch.undo
@@ -499,12 +530,16 @@ def closure_outcome(carry: dict, count: Array, memory: Array,
     jump = jnp.asarray(params.closure_jump, dtype)
     candidate = memory[12:15]
     alias = (refused | undo) & (jnp.hypot(correction[0] - candidate[0], correction[1] - candidate[1]) <= jump)
+    bound = jnp.asarray(params.closure_drift, dtype) * travelled
+    map_bound = memory.shape[0] > MEMORY
+    if map_bound:  # the sum of the kept corrections, less the one this scan undoes
+        offset = memory[MEMORY] - jnp.where(undo, jnp.hypot(applied[0], applied[1]), 0.0)
+        bound = jnp.minimum(bound, jnp.asarray(params.closure_reach_rate, dtype) * travelled + offset)
     wins = (
         (holding | triggered) & ~alias
         & (found / count >= jnp.asarray(params.closure_min_score, dtype))
         & (found >= jnp.asarray(params.closure_gain, dtype) * score)
-        & (jnp.hypot(pose[0] - matched[0], pose[1] - matched[1]) <= jnp.maximum(
-            jump, jnp.asarray(params.closure_drift, dtype) * travelled))
+        & (jnp.hypot(pose[0] - matched[0], pose[1] - matched[1]) <= jnp.maximum(jump, bound))
     )
     scans = jnp.where(wins, held[3] + 1, 0.0)
     closed = wins & (scans >= jnp.asarray(params.closure_confirm, dtype))
@@ -520,6 +555,7 @@ def closure_outcome(carry: dict, count: Array, memory: Array,
         jnp.where(closed | ~watching, 0.0, conflict_count)[None],
         jnp.where(closed, travelled, jnp.where(undo, 0.0, before))[None],
         jnp.where(closed, correction, candidate),
+        *([offset[None]] if map_bound else []),  # record_applied adds a closure's correction
     ])
     # what an undo takes back, for the path reported
     # (:func:`jaxslam.grid.undone_closures.take_back`): the scans since the closure, A
@@ -531,11 +567,15 @@ def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
     """``memory`` with :math:`A`, the correction the tracking applied for a closure
     just ``taken`` (its pose over the local match, after the tracking's constraint),
     which an undo takes back."""
-    return memory.at[5:8].set(jnp.where(taken, correction, memory[5:8]))
+    memory = memory.at[5:8].set(jnp.where(taken, correction, memory[5:8]))
+    if memory.shape[0] > MEMORY:  # the sum of the kept corrections (closure_outcome)
+        memory = memory.at[MEMORY].add(jnp.where(taken, jnp.hypot(correction[0], correction[1]), 0.0))
+    return memory
 
 
 __all__ = [
     "BEAM_STRIDE", "FAST_SHARE", "MEMORY", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
     "Watch", "candidate_scores", "closure_carry", "closure_outcome", "closure_phases", "coarse_candidates",
-    "coarse_window", "conflict_fraction", "record_applied", "refine_count", "watch_closure", "window_half",
+    "coarse_window", "conflict_fraction", "memory_length", "record_applied", "refine_count", "watch_closure",
+    "window_half",
 ]

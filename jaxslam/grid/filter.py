@@ -36,7 +36,7 @@ from jaxslam.core.resampling import (
     selective_resample,
 )
 from jaxslam.runtime.driver import best_particle
-from jaxslam.grid.closure import MEMORY
+from jaxslam.grid.closure import memory_length
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.matching import Climb, EllipseBound, climbs_in_turn, get_matcher, gmapping_basis, hill_climb, search_bound
 from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn, scan_log_likelihood
@@ -239,7 +239,7 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
         status=status,
         motion=jnp.zeros((3,), dtype),
         since_keyframe=jnp.zeros((5,), dtype),
-        closure_memory=jnp.zeros((MEMORY,), dtype),
+        closure_memory=jnp.zeros((memory_length(config),), dtype),
     )
 
 

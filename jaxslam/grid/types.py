@@ -78,6 +78,12 @@ class GridSlamConfig:
             (``closure_reach_rate``, :mod:`jaxslam.grid.closure`): a second coarse
             stage, run only where that reach exceeds ``closure_radius``; at or below
             ``closure_radius`` there is none.
+        closure_map_bound: bound a closure's jump by the map's own offset as well: at
+            most ``closure_reach_rate`` times the odometry distance since the last
+            closure plus the sum of the corrections the closures kept so far (what
+            the map drawn before them can be off by), and never more than the
+            ``closure_drift`` bound (:func:`jaxslam.grid.closure.closure_outcome`);
+            off: the ``closure_drift`` bound alone.
         recover_radius: where the tracking's match is refused, search this far (m,
             each axis) around its guess for the scan's pose, an odometry that jumped
             (:mod:`jaxslam.grid.recovery`, which has the rule and what it was
@@ -108,6 +114,7 @@ class GridSlamConfig:
     closure_radius: float = 6.0
     closure_turn: float = 0.14
     closure_radius_far: float = 10.0
+    closure_map_bound: bool = False
     recover_radius: float = 0.0
 
     def __post_init__(self):

@@ -75,3 +75,32 @@ def test_benchmark_score_equals_the_relation_error_by_hand():
     with pytest.raises(ValueError, match="not one pose per scan"):
         robustness.score_benchmark(bench, np.zeros((5, 3)))
     assert robustness.score_benchmark(None, laser) == {}
+
+
+def test_the_tail_is_the_share_of_seeds_over_twice_the_median_seed():
+    median, share = robustness.tail([0.04, 0.05, 0.06, 0.13, 1.2])
+    assert median == pytest.approx(0.06)
+    assert share == pytest.approx(2 / 5)  # 0.13 and 1.2 are over twice the median, 0.12
+    assert robustness.tail([0.05, 0.1]) == (pytest.approx(0.075), 0.0)
+    assert robustness.tail([0.05, 0.05, 0.1000001])[1] == pytest.approx(1 / 3)
+
+
+def test_each_code_split_is_summarised_on_its_own_seeds():
+    def row(seed, mean, split=None):
+        r = {"log": "mit-killian", "filter": "srupf-gm", "seed": seed, "mean_m": mean, "max_m": 10 * mean,
+             "over_0.5m": int(mean > 0.5), "jump_max_m": 0.1, "wall_s": 1.0, "cpu_s": 1.0}
+        return r if split is None else {**r, "code_split": split}
+
+    rows = [row(0, 0.05, 8), row(1, 0.05, 8), row(2, 0.9, 8), row(0, 0.04, 32), row(1, 0.05, 32), row(2, 0.06, 32)]
+    cells = {s["code_split"]: s for s in robustness.summarize(rows)}
+    assert set(cells) == {8, 32}
+    assert cells[8]["tail_share"] == pytest.approx(1 / 3) and cells[8]["worst_max_m"] == pytest.approx(9.0)
+    assert cells[32]["tail_share"] == 0.0 and cells[32]["median_seed_mean_m"] == pytest.approx(0.05)
+    assert "code_split" not in robustness.summarize([row(0, 0.05)])[0]
+
+
+def test_another_code_split_reaches_the_worker_through_xla_flags():
+    assert robustness.split_flags("", None) == ""
+    assert robustness.split_flags("--xla_dump_to=/tmp/d", None) == "--xla_dump_to=/tmp/d"
+    assert robustness.split_flags("", 32) == f"--{robustness.SPLIT_OPTION}=32"
+    assert robustness.split_flags("--xla_dump_to=/tmp/d", 1) == f"--xla_dump_to=/tmp/d --{robustness.SPLIT_OPTION}=1"

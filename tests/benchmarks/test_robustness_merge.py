@@ -66,3 +66,19 @@ def test_a_table_of_no_runs_prints_its_header(capsys):
     common = load_benchmark("_common")
     common.print_table([], ["log", "mean_m"])
     assert capsys.readouterr().out.split("\n")[0].split() == ["log", "mean_m"]
+
+
+def test_runs_under_two_code_splits_are_two_runs_and_two_columns(tmp_path):
+    import json
+
+    def part(path, split):
+        runs = [{"log": "intel", "filter": "srupf-gm", "seed": 0, "mean_m": 0.03 if split == 8 else 0.3,
+                 "max_m": 1.0, "over_0.5m": 0, "jump_max_m": 0.1, "wall_s": 1.0, "cpu_s": 1.0, "code_split": split}]
+        path.write_text(json.dumps({"runs": runs}))
+        return str(path)
+
+    rows, replaced = merge_module.merge([part(tmp_path / "a.json", 8), part(tmp_path / "b.json", 32)])
+    assert [r["code_split"] for r in rows] == [8, 32] and replaced == []
+    table = merge_module.markdown(merge_module.summarize(rows)).splitlines()
+    assert table[0] == "| log | srupf-gm, code split 8 | srupf-gm, code split 32 |"
+    assert table[2] == "| intel | 0.030 (0.030), 1.00 m, 0 [1] | 0.300 (0.300), 1.00 m, 0 [1] |"

@@ -297,6 +297,36 @@ def test_a_jump_beyond_the_drift_since_the_last_closure_is_refused(sim, tracked)
     assert bool(closed[3]) and float(closed[5][4]) == 0.0
 
 
+def test_a_first_closure_is_bounded_by_the_tracking_drift_and_a_later_one_by_the_map_offset(sim, tracked):
+    """``config.closure_map_bound``: 50 m of odometry and no closure kept yet, the 1.6 m
+    closure is beyond ``closure_reach_rate`` (0.02) x 50 m = 1 m and refused, where the
+    ``closure_drift`` bound alone (25 m) takes it; with 1 m of corrections kept before
+    (the map drawn before them can be 1 m off) the bound is 2 m and it closes, and the
+    sum grows by the correction taken. An undo takes that correction off the sum."""
+    track, state, scans, params, config = tracked
+    at_once = params._replace(closure_confirm=np.float64(1.0))
+    bounded = dataclasses.replace(config, closure_map_bound=True)
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        memory = jnp.zeros(MEMORY + 1).at[4].set(50.0)
+        plain = track(state._replace(closure_memory=memory[:MEMORY]), wrong, scans[3], at_once, config)
+        first = track(state._replace(closure_memory=memory), wrong, scans[3], at_once, bounded)
+        later = track(state._replace(closure_memory=memory.at[MEMORY].set(1.0)), wrong, scans[3], at_once, bounded)
+    assert bool(plain[3]) and _on_true_pose(true_step, plain), plain[:4]
+    assert not bool(first[3]) and float(first[5][MEMORY]) == 0.0
+    assert bool(later[3]) and _on_true_pose(true_step, later), later[:4]
+    taken = float(np.hypot(*np.asarray(later[5])[5:7]))
+    assert taken > 1.0 and float(later[5][MEMORY]) == pytest.approx(1.0 + taken)
+    # the closure undone at the end of its watch: its correction leaves the sum
+    applied = np.asarray(later[5])[5:8]
+    undo_memory = jnp.asarray(_watched(state, applied, 6.0, 10.0, 20.0).closure_memory)
+    undo_memory = jnp.concatenate([undo_memory, jnp.asarray([1.0 + taken])])
+    with jax.enable_x64(True):
+        undone = track(state._replace(closure_memory=undo_memory), true_step, scans[3], params, bounded)
+    assert float(undone[6][0]) > 0 and float(undone[5][MEMORY]) == pytest.approx(1.0)
+
+
 def _watched(state, applied, travelled, conflict_sum, conflict_count, before=7.0, mode=1.0):
     memory = jnp.zeros(MEMORY).at[4].set(travelled).at[5:8].set(jnp.asarray(applied))
     memory = memory.at[8].set(mode).at[9].set(conflict_sum).at[10].set(conflict_count).at[11].set(before)
