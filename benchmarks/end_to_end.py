@@ -3,7 +3,8 @@ compilation cache, next to GMapping C++ in the same run, for one checkout or sev
 
 Usage:
     python benchmarks/end_to_end.py [--cases intel-srupf-30 intel200-bag intel200-sweep vp-erb-100 ...]
-        [--modes cold warm] [--tree old=/path/to/checkout --tree new=.] [--no-gmapping]
+        [--modes cold warm] [--cold-only CASE ...] [--sweep-particles 10,20,30,50,100]
+        [--tree old=/path/to/checkout --tree new=.] [--no-gmapping]
         [--workdir DIR] [--timeout S] [--json NAME | --json /path/to/file.json]
 
 Cases (``--cases all`` for every one; default ``intel-srupf-30``):
@@ -132,10 +133,11 @@ def write_short_bag(workdir: Path) -> Path:
     return path
 
 
-def run_sweep(cache: Path, out: Path, timeout: float, tree: Path) -> dict:
+def run_sweep(cache: Path, out: Path, timeout: float, tree: Path, particles: tuple = SWEEP_PARTICLES) -> dict:
     """The particle sweep of :data:`SWEEP_CASE` in one process of the checkout ``tree``."""
+    counts = ",".join(map(str, particles))
     cmd = ["nice", "-n", "10", sys.executable, "-c", SWEEP_PROGRAM, str(cache), str(out), "intel",
-           str(SHORT_KEYFRAMES), ",".join(map(str, SWEEP_PARTICLES))]
+           str(SHORT_KEYFRAMES), counts]
     load_before = os.getloadavg()[0]
     started = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=tree_env(tree), timeout=timeout, cwd=str(tree))
@@ -150,8 +152,7 @@ def run_sweep(cache: Path, out: Path, timeout: float, tree: Path) -> dict:
             "lower_s": total.get("lower_s"), "runs": result["runs"], "overhead_s": process_s - sum(
                 r["wall_s"] for r in result["runs"]),
             "load_average": [load_before, os.getloadavg()[0]],
-            "command": f"python -c SWEEP_PROGRAM {cache} {out} intel {SHORT_KEYFRAMES} "
-                       + ",".join(map(str, SWEEP_PARTICLES))}
+            "command": f"python -c SWEEP_PROGRAM {cache} {out} intel {SHORT_KEYFRAMES} {counts}"}
 
 
 def run_jaxslam(case: str, cache: Path | None, out: Path, timeout: float, tree: Path = ROOT,
@@ -216,7 +217,7 @@ def run_gmapping_case(case: str, workdir: Path, timeout: float) -> dict:
 
 def run_case(case: str, mode: str, cache: Path, out: Path, args, tree: Path, bag: Path | None) -> dict:
     if case == SWEEP_CASE:
-        return run_sweep(cache, out, args.timeout, tree)
+        return run_sweep(cache, out, args.timeout, tree, args.sweep_particles)
     if case == BAG_CASE:
         return run_jaxslam(case, cache, out, args.timeout, tree, dataset=str(bag),
                            extra=("--max-steps", str(SHORT_KEYFRAMES)))
@@ -242,6 +243,10 @@ def main() -> None:
     parser.add_argument("--timeout", type=float, default=3600.0, help="seconds per process")
     parser.add_argument("--json", default="end_to_end",
                         help="result: benchmarks/results/NAME.json, or a path ending in .json")
+    parser.add_argument("--cold-only", nargs="*", default=[], metavar="CASE", help="cases to run cold only")
+    parser.add_argument("--sweep-particles", type=lambda t: tuple(int(c) for c in t.split(",")),
+                        default=SWEEP_PARTICLES, metavar="N,N,...",
+                        help=f"the sweep's particle counts (default {','.join(map(str, SWEEP_PARTICLES))})")
     parser.add_argument("--tree", action="append", default=[], metavar="NAME=PATH",
                         help="a checkout to run (repeatable; default: this one, as 'new')")
     args = parser.parse_args()
@@ -259,11 +264,11 @@ def main() -> None:
     bag = write_short_bag(workdir) if BAG_CASE in cases else None
     meta = {"workdir": str(workdir), "trees": [[name, str(path)] for name, path in trees],
             "bag": None if bag is None else {"path": str(bag), "scans": BAG_SCANS, "max_steps": SHORT_KEYFRAMES},
-            "sweep_particles": list(SWEEP_PARTICLES)}
+            "sweep_particles": list(args.sweep_particles)}
 
     rows = []
     for case in cases:
-        modes = ["cold"] if case == SWEEP_CASE else list(args.modes)
+        modes = ["cold"] if case == SWEEP_CASE or case in args.cold_only else list(args.modes)
         case_rows = {name: {"case": case, "tree": name} for name, _ in trees}
         for name, _ in trees:
             shutil.rmtree(workdir / f"cache_{case}_{name}", ignore_errors=True)
