@@ -219,8 +219,9 @@ def run_scan_chunked(
     if remaining == 0:
         ys = None
         if prior_leaves is not None:
-            last = jax.tree_util.tree_map(lambda leaf: leaf[-1:], xs_all)
-            shapes = jax.eval_shape(runner, carry, last, jnp.ones((1,), bool))[1]
+            # shapes only, of host slices: no program of its own for a finished run
+            last = jax.tree_util.tree_map(lambda leaf: _host(leaf)[-1:], xs_all)
+            shapes = jax.eval_shape(runner, carry, last, np.ones((1,), bool))[1]
             _check_prior(prior_leaves, shapes, prior_from)
             ys = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(shapes), prior_leaves)
         return carry, ys, Timing(0.0, 0.0, 0)
