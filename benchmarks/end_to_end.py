@@ -12,7 +12,7 @@ Cases (``--cases all`` for every one; default ``intel-srupf-30``):
     intel-srupf-30, intel-srupf-100, intel-gmapping-30, intel-gmapping-100,
     killian-srupf-30, clinic-srupf-30, vp-erb-100, vp-erb-1000: a whole log;
     intel200-bag: SRUPF-GM, 30 particles, on a ROS 2 bag of the Intel log's first
-    1500 scans (written into the work folder with :mod:`jaxslam.datasets.rosbag_write`),
+    2400 scans (written into the work folder with :mod:`jaxslam.datasets.rosbag_write`),
     ``--max-steps 200`` keyframes: a user's first look at a short bag;
     intel200-sweep: SRUPF-GM on Intel's first 200 keyframes with 10, 20, 30, 50 and 100
     particles one after the other in one Python process (``jaxslam.app.runs.run``, no
@@ -67,7 +67,7 @@ from _common import print_table, write_json  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 BAG_CASE = "intel200-bag"
-BAG_SCANS, SHORT_KEYFRAMES = 1500, 200
+BAG_SCANS, SHORT_KEYFRAMES = 2400, 200
 SWEEP_CASE = "intel200-sweep"
 SWEEP_PARTICLES = (10, 20, 30, 50, 100)
 
