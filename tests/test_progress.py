@@ -1,6 +1,7 @@
 """The chunked scan runner equals one lax.scan, resumes exactly, and compiles once."""
 
 import jax
+import pytest
 import jax.numpy as jnp
 import numpy as np
 
@@ -158,3 +159,64 @@ def test_checkpoint_load_leading_restores_only_the_leading_state(tmp_path):
         Checkpoint(tmp_path / "c.npz").load_leading({"a": np.zeros(4, np.float32), "b": np.array(0, np.int32)})
     with pytest.raises(CheckpointError, match="needs 4"):
         Checkpoint(tmp_path / "c.npz").load_leading([np.zeros(3, np.float32)] * 4)
+
+
+def test_checkpoints_resumes_and_live_updates_run_the_plain_runs_program(tmp_path):
+    """The chunk length follows the log only: a checkpoint interval shorter than the
+    chunk, a resume in the middle of a chunk and a callback every few steps run the
+    plain run's compiled chunk (nothing compiled anew), with the plain run's result."""
+    from jaxslam.runtime.cache import CompileCounter
+    from jaxslam.runtime.checkpoint import Checkpoint
+
+    xs = {"value": jnp.sin(jnp.arange(47, dtype=jnp.float32))}
+    runner = make_chunk_runner(step)
+
+    def init():
+        return (jnp.array(0.0, jnp.float32), jnp.array(0, jnp.int32))
+
+    class Interrupt(Exception):
+        pass
+
+    def crash(_carry, done):
+        if done >= 20:
+            raise Interrupt
+
+    plain_carry, plain_ys, _ = run_scan_chunked(None, init(), xs, chunk=16, progress=False, runner=runner)
+    seen = []
+    with CompileCounter() as counter:
+        path, half = tmp_path / "ckpt.npz", tmp_path / "half.npz"
+        checkpointed = run_scan_chunked(None, init(), xs, chunk=16, progress=False, runner=runner,
+                                        checkpoint=Checkpoint(path, every=5))
+        finished = run_scan_chunked(None, init(), xs, chunk=16, progress=False, runner=runner,
+                                    checkpoint=Checkpoint(path, resume=True))
+        with pytest.raises(Interrupt):
+            run_scan_chunked(None, init(), xs, chunk=16, progress=False, runner=runner,
+                             checkpoint=Checkpoint(half, every=5), callback=crash)
+        resumed = run_scan_chunked(None, init(), xs, chunk=16, progress=False, runner=runner,
+                                   checkpoint=Checkpoint(half, every=5, resume=True))
+        live = run_scan_chunked(None, init(), xs, chunk=16, progress=False, runner=runner,
+                                callback=lambda _carry, done: seen.append(done), callback_every=7)
+        middle = run_scan_chunked(None, init(), xs, chunk=16, progress=False, runner=runner, start=21)
+    assert counter.requests == 0, counter.as_dict()
+    assert seen == [7, 14, 21, 28, 35, 42, 47]
+    assert resumed[2].steps == 47 - 20
+    for carry, ys, _timing in (checkpointed, finished, resumed, live):
+        assert np.asarray(carry[0]).tobytes() == np.asarray(plain_carry[0]).tobytes() and int(carry[1]) == 47
+        assert np.asarray(ys["total"]).tobytes() == np.asarray(plain_ys["total"]).tobytes()
+    assert int(middle[0][1]) == 47 - 21 and middle[1]["total"].shape == (26,)
+
+
+def test_a_checkpoint_interval_shorter_than_the_chunk_saves_at_every_interval(tmp_path):
+    from jaxslam.runtime.checkpoint import Checkpoint
+
+    saved = []
+
+    class Recording(Checkpoint):
+        def save(self, carry, done, output_leaves):
+            saved.append((done, int(carry[1]), output_leaves[0].shape[0]))
+            super().save(carry, done, output_leaves)
+
+    xs = {"value": jnp.arange(23, dtype=jnp.float32)}
+    run_scan_chunked(step, (jnp.array(0.0, jnp.float32), jnp.array(0)), xs, chunk=10, progress=False,
+                     checkpoint=Recording(tmp_path / "c.npz", every=4))
+    assert saved == [(d, d, d) for d in (4, 8, 12, 16, 20, 23)]

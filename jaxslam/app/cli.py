@@ -186,7 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "arguments; the result equals an uninterrupted run")
     run.add_argument("--chunk", type=_positive_int, default=None,
                      help="steps per compiled chunk (progress-bar granularity); default: 512 scans for landmark "
-                          "data (at most 50 with --rerun), 256 scans for laser data")
+                          "data, 256 scans for laser data (--rerun and --checkpoint-every run the same program)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     run.add_argument("--json", action="store_true",

@@ -88,13 +88,15 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
 
     loading = time.perf_counter()
     sequence = info.load(seed=seed, max_steps=max_steps)
-    live = {} if viz is None else {"callback": viz.landmark_callback(np.asarray(sequence.times))}
+    # the live view every 50 steps, with the plain run's chunk (its compiled program)
+    live = {} if viz is None else {"callback": viz.landmark_callback(np.asarray(sequence.times)),
+                                   "callback_every": 50}
     load_s = time.perf_counter() - loading
     if prefetch:
         prefetch_plotting()
     result = run_landmark_slam(
         sequence, algorithm=algorithm, particles=particles, seed=seed, params=overrides,
-        progress=progress, chunk=min(chunk or 512, 50) if viz is not None else chunk or 512, dtype=dtype,
+        progress=progress, chunk=chunk or 512, dtype=dtype,
         checkpoint=checkpoint, **live,
     )
     if viz is not None:
@@ -287,10 +289,12 @@ def _open_viz(rerun_path, rerun_spawn, name):
 
 
 def _grid_live_log(viz, log, chunk):
-    """Follow a grid run (its keyframes are collected as the run goes)."""
+    """Follow a grid run (its keyframes are collected as the run goes), one update per
+    chunk of the run: the plain run's chunk, so the live view runs its compiled program."""
+    from jaxslam.grid.driver import DEFAULT_CHUNK
     from jaxslam.viz.rerun_log import GridLiveLog
 
-    return GridLiveLog(viz, log, every=min(chunk or 100, 100))
+    return GridLiveLog(viz, log, every=chunk or DEFAULT_CHUNK)
 
 
 # --------------------------------------------------------------------------- entry points

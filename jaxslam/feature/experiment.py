@@ -113,6 +113,7 @@ def run_landmark_slam(
     dtype: Any = jnp.float32,
     checkpoint: Any = None,
     callback: Any = None,
+    callback_every: int | None = None,
 ) -> LandmarkSlamResult:
     """Run RB-UPF or ERB-UPF over a whole sequence.
 
@@ -132,6 +133,8 @@ def run_landmark_slam(
         callback: passed to :func:`jaxslam.runtime.progress.run_scan_chunked`: called on the host
             as ``callback(carry, steps_done)`` after every chunk; the carry is
             ``(State, Params)``.
+        callback_every: call ``callback`` every that many steps as well (the same
+            compiled chunk: a live view runs the plain run's program).
     """
     if algorithm not in ALGORITHMS:
         raise ValueError(f"algorithm must be one of {sorted(ALGORITHMS)}, got {algorithm!r}")
@@ -150,7 +153,7 @@ def run_landmark_slam(
     extra = {} if checkpoint is None else {"checkpoint": checkpoint}
     (state, _), infos, timing = run_scan_chunked(
         None, (state, params_arr), xs, chunk=chunk, desc=algorithm, progress=progress,
-        runner=chunk_runner(feature_filter.step, cfg), callback=callback, **extra,
+        runner=chunk_runner(feature_filter.step, cfg), callback=callback, callback_every=callback_every, **extra,
     )
     state = jax.tree_util.tree_map(np.asarray, state)
     info = {name: np.asarray(value) for name, value in infos._asdict().items()}

@@ -197,7 +197,8 @@ def run_filter(
         if saved is not None:
             config = dataclasses.replace(config, layout=PagedLayout(**saved))
         template = jax.eval_shape(lambda: init(init_key, params, config, first_scan, initial_pose))
-        state = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), template)
+        # NumPy zeros: jnp.zeros would be a small program per leaf that a plain run never compiles
+        state = jax.tree_util.tree_map(lambda s: np.zeros(s.shape, s.dtype), template)
     else:
         state, config = init_state(init_key, params, config, first_scan, initial_pose, stats, progress, start)
     start, prior = 0, None

@@ -344,8 +344,8 @@ class StreamingGridSlam:
         """``(log_odds (H, W) float32, resolution, origin)`` of the best particle's map
         (row 0 at ``origin`` y)."""
         best = self.best_index()
-        cells, origin = stitch(self.state.maps.pool, self.state.maps.tables[best], self.state.maps.corner,
-                               self.config.layout)
+        maps = self.state.maps
+        cells, origin = stitch(maps.pool, np.asarray(maps.tables)[best], maps.corner, self.config.layout)
         return cells.astype(np.float32) * float(self.params.log_odds_unit), self.config.layout.resolution, origin
 
     def step_versions(self) -> int:

@@ -66,7 +66,7 @@ class Checkpoint:
 
     Attributes:
         path: the checkpoint file (``.npz``).
-        every: save after the chunk in which another ``every`` steps were completed.
+        every: save every ``every`` steps (and at the end of the run).
         fingerprint: JSON-able description of the run; a resume must match it.
         resume: load ``path`` (if it exists) before running.
         static: JSON-able static settings that shape the state and may change during
@@ -86,6 +86,11 @@ class Checkpoint:
 
     def due(self, done: int) -> bool:
         return self.every is not None and done - self._last_saved >= self.every
+
+    def steps_to_save(self, done: int) -> int | None:
+        """Steps from ``done`` to the next save (at least 1), or None without ``every``:
+        the chunked runner ends a chunk there (:func:`jaxslam.runtime.progress.run_scan_chunked`)."""
+        return None if self.every is None else max(1, self._last_saved + self.every - done)
 
     def save(self, carry, done: int, output_leaves: list[np.ndarray]) -> None:
         """Write the carry, the outputs of steps ``0..done-1`` and the position, atomically."""
@@ -185,5 +190,6 @@ class Checkpoint:
             raise CheckpointError(f"{where}: output arrays {missing} are missing")
         outputs = [files[f"out_{i}"] for i in range(meta["n_out"])]
         self._last_saved = int(meta["done"])
-        carry = jax.tree_util.tree_unflatten(treedef, [jax.numpy.asarray(a) for a in restored])
+        # device_put, not jnp.asarray: the latter is a small program per array
+        carry = jax.tree_util.tree_unflatten(treedef, [jax.device_put(a) for a in restored])
         return carry, int(meta["done"]), outputs

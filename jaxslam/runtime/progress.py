@@ -2,10 +2,16 @@
 
 A whole run as one ``lax.scan`` is the fastest, but gives no feedback. Here the time
 axis is cut into chunks of equal length; one chunk is a jitted ``lax.scan`` compiled
-once (the last, shorter chunk is padded and its padding steps skipped with
-``lax.cond``, so it does not recompile). Between chunks the host updates a progress
-bar with scans per second and ETA, and may call a callback (checkpointing).
-Compilation is done ahead of the first chunk and timed apart.
+once (a chunk that ends before its length, the last one or one that ends at a
+checkpoint, is padded and its loop stops before the padding, so it does not
+recompile). Between chunks the host updates a progress bar with scans per second and
+ETA, and may call a callback (checkpointing). Compilation is done ahead of the first
+chunk and timed apart.
+
+The chunk length depends only on ``chunk`` and the length of the log (``min(chunk,
+T)``), never on where a resumed run starts or how often it checkpoints: a plain run,
+a checkpointed one, a resumed one and a live view of the same log run one compiled
+program (``tests/test_progress.py``, ``tests/test_compile_counts.py``).
 
 The carry is donated to each chunk: large per-particle buffers (grids) are updated
 in place.
@@ -66,7 +72,9 @@ def _tree_pad(xs, length: int, total: int):
 def make_chunk_runner(
     step_fn: StepFn, donate: bool = True, tag: tuple | None = None, compiler_options: dict | None = None
 ):
-    """A jitted ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk.
+    """A jitted ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk; ``valid``
+    (bool, the chunk's length) marks the steps to run, a prefix (the outputs of the
+    others are zeros).
 
     ``tag`` (from :func:`jaxslam.runtime.executables.runner_tag`) names everything besides the
     arguments that determines the program; with it the compiled runner is kept on disk
@@ -79,18 +87,23 @@ def make_chunk_runner(
     step_jit = jax.jit(step_fn)
 
     def run_chunk(carry, xs_chunk, valid):
+        # ``valid`` is a prefix: its steps run, in a loop of that many iterations, and
+        # the padding steps after it are not run at all (their outputs are zeros). A
+        # ``lax.cond`` per step would pass the carry through a skipped step, a copy of
+        # every map buffer.
         x0 = jax.tree_util.tree_map(lambda leaf: leaf[0], xs_chunk)
         y_shape = jax.eval_shape(step_jit, carry, x0)[1]
+        length = valid.shape[0]
+        ys = jax.tree_util.tree_map(lambda s: jnp.zeros((length, *s.shape), s.dtype), y_shape)
 
-        def skip(c, _x):
-            zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), y_shape)
-            return c, zeros
+        def body(i, c_ys):
+            c, ys = c_ys
+            x = jax.tree_util.tree_map(lambda leaf: jax.lax.dynamic_index_in_dim(leaf, i, keepdims=False), xs_chunk)
+            c, y = step_jit(c, x)
+            ys = jax.tree_util.tree_map(lambda buf, v: jax.lax.dynamic_update_index_in_dim(buf, v, i, 0), ys, y)
+            return c, ys
 
-        def body(c, inputs):
-            x, ok = inputs
-            return jax.lax.cond(ok, step_jit, skip, c, x)
-
-        return jax.lax.scan(body, carry, (xs_chunk, valid))
+        return jax.lax.fori_loop(0, jnp.sum(valid.astype(jnp.int32)), body, (carry, ys))
 
     runner = jit_with(run_chunk, compiler_options, donate_argnums=(0,) if donate else ())
     runner.jaxslam_tag = tag
@@ -143,6 +156,7 @@ def run_scan_chunked(
     donate: bool = True,
     start: int = 0,
     callback: Callable[[Any, int], None] | None = None,
+    callback_every: int | None = None,
     runner=None,
     checkpoint=None,
     stop: Callable[[Any], bool] | None = None,
@@ -154,7 +168,8 @@ def run_scan_chunked(
         step_fn: ``(carry, x) -> (carry, y)``, pure and jittable.
         carry: initial carry (donated to the first chunk when ``donate``).
         xs: pytree of arrays with a common leading time axis ``T``.
-        chunk: steps per compiled chunk (static); the progress bar updates per chunk.
+        chunk: steps per compiled chunk (static; ``min(chunk, T)``); the progress bar
+            updates per chunk.
         desc, unit: progress-bar labels.
         progress: show the bar and the compilation line.
         donate: donate the carry buffers to each chunk.
@@ -162,11 +177,14 @@ def run_scan_chunked(
         callback: called on the host as ``callback(carry, steps_done)`` after every
             chunk (e.g. to checkpoint). It must not keep references to donated
             buffers beyond the call (copy to host first).
+        callback_every: end a chunk every that many steps as well, so that ``callback``
+            sees the run that often (a live view) with the same compiled chunk.
         runner: a chunk runner from :func:`make_chunk_runner` to reuse (its compiled
             code is cached by JAX for equal shapes, so a sweep compiles once).
         checkpoint: a :class:`jaxslam.runtime.checkpoint.Checkpoint`. With ``resume`` its file
             (carry, outputs so far, position) replaces ``carry`` and ``start``; with
-            ``every`` the state is saved atomically at chunk ends. A resumed run's
+            ``every`` the state is saved atomically every ``every`` steps (a chunk ends
+            there, its remaining steps skipped: the same program). A resumed run's
             ``ys`` cover all steps from 0 and equal those of an uninterrupted run.
         stop: ``stop(carry) -> bool`` checked after every chunk; when true the run
             ends there (no checkpoint is written for that chunk) and ``ys`` cover the
@@ -186,8 +204,6 @@ def run_scan_chunked(
         carry, start, prior_leaves = checkpoint.load(carry)
         prior_from = str(checkpoint.path)
         log(f"{desc}: resumed from {checkpoint.path} at step {start}", progress)
-    if checkpoint is not None and checkpoint.every is not None:
-        chunk = min(chunk, checkpoint.every)
     leaves = jax.tree_util.tree_leaves(xs)
     if not leaves:
         raise ValueError("xs has no arrays to scan over")
@@ -195,29 +211,36 @@ def run_scan_chunked(
     if not 0 <= start <= total:
         raise ValueError(f"start={start} outside 0..{total}")
     xs_all = xs
-    xs = jax.tree_util.tree_map(lambda leaf: _host(leaf)[start:], xs)
     remaining = total - start
-    chunk = max(1, min(chunk, max(remaining, 1)))
-    padded_len = -(-remaining // chunk) * chunk if remaining else 0
+    # The program's length: the same for every start and checkpoint interval (see above).
+    chunk = max(1, min(chunk, total))
     runner = runner or make_chunk_runner(step_fn, donate)
 
     if remaining == 0:
         ys = None
         if prior_leaves is not None:
-            last = jax.tree_util.tree_map(lambda leaf: leaf[-1:], xs_all)
-            shapes = jax.eval_shape(runner, carry, last, jnp.ones((1,), bool))[1]
+            # shapes only, of host slices: no program of its own for a finished run
+            last = jax.tree_util.tree_map(lambda leaf: _host(leaf)[-1:], xs_all)
+            shapes = jax.eval_shape(runner, carry, last, np.ones((1,), bool))[1]
             _check_prior(prior_leaves, shapes, prior_from)
             ys = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(shapes), prior_leaves)
         return carry, ys, Timing(0.0, 0.0, 0)
 
-    xs = _tree_pad(xs, remaining, padded_len)
-    valid = np.arange(padded_len) < remaining
+    # On the host, padded by one chunk (the last step repeated) so that a chunk may
+    # start at any step: it ends at the log's end or at the next checkpoint.
+    xs = _tree_pad(jax.tree_util.tree_map(_host, xs), total, total + chunk)
+    until_save = getattr(checkpoint, "steps_to_save", None)
 
-    def chunk_inputs(i):
-        sl = slice(i * chunk, (i + 1) * chunk)
-        return jax.tree_util.tree_map(lambda leaf: leaf[sl], xs), valid[sl]
+    def chunk_inputs(at: int):
+        steps = min(chunk, total - at)
+        if until_save is not None:
+            steps = min(steps, until_save(at) or steps)
+        if callback_every:
+            steps = min(steps, callback_every - at % callback_every)
+        sl = slice(at, at + chunk)
+        return jax.tree_util.tree_map(lambda leaf: leaf[sl], xs), np.arange(chunk) < steps, steps
 
-    xs0, valid0 = chunk_inputs(0)
+    xs0, valid0, steps0 = chunk_inputs(start)
     log(f"{desc}: compiling (one time) ...", progress)
     t0 = time.perf_counter()
     compiled, loaded = compile_runner(runner, carry, xs0, valid0)
@@ -229,20 +252,19 @@ def run_scan_chunked(
     t0 = time.perf_counter()
     done = start
     try:
-        for i in range(padded_len // chunk):
-            xs_i, valid_i = (xs0, valid0) if i == 0 else chunk_inputs(i)
+        while done < total:
+            xs_i, valid_i, n_valid = (xs0, valid0, steps0) if done == start else chunk_inputs(done)
             carry, ys = compiled(carry, xs_i, valid_i)
             jax.block_until_ready(carry)
-            if i == 0 and prior_leaves is not None:
+            if done == start and prior_leaves is not None:
                 _check_prior(prior_leaves, ys, prior_from)
-            n_valid = min(chunk, total - done)
             done += n_valid
-            outputs.append(ys)
+            outputs.append((ys, n_valid))
             bar.update(n_valid)
             if stop is not None and stop(carry):
                 break
             if checkpoint is not None and (checkpoint.due(done) or (checkpoint.every and done == total)):
-                leaves = jax.tree_util.tree_leaves(_stack(outputs, done - start))
+                leaves = jax.tree_util.tree_leaves(_stack(outputs))
                 if prior_leaves is not None:
                     leaves = [np.concatenate([p, np.asarray(c)], 0) for p, c in zip(prior_leaves, leaves)]
                 checkpoint.save(carry, done, leaves)
@@ -251,7 +273,7 @@ def run_scan_chunked(
     finally:
         bar.close()
     wall_s = time.perf_counter() - t0
-    ys = _stack(outputs, done - start)
+    ys = _stack(outputs)
     if prior_leaves is not None:
         treedef = jax.tree_util.tree_structure(ys)
         leaves = [jax.device_put(np.concatenate([p, np.asarray(c)], 0))
@@ -276,9 +298,11 @@ def _check_prior(prior_leaves: list, ys, where: str) -> None:
             "per step shapes and dtypes): it was written by another filter or version; start the run again")
 
 
-def _stack(outputs, length: int):
-    """Concatenate per-chunk outputs and drop the padding steps (on the host: no JAX
-    program per output leaf; the result is a JAX array as before)."""
+def _stack(outputs):
+    """Concatenate per-chunk outputs ``(ys, steps run)`` without their padding steps (on
+    the host: no JAX program per output leaf; the result is a JAX array as before)."""
+    counts = [steps for _ys, steps in outputs]
     return jax.tree_util.tree_map(
-        lambda *parts: jax.device_put(np.concatenate([np.asarray(part) for part in parts], 0)[:length]), *outputs)
+        lambda *parts: jax.device_put(np.concatenate([np.asarray(part)[:n] for part, n in zip(parts, counts)], 0)),
+        *[ys for ys, _steps in outputs])
 

@@ -246,8 +246,9 @@ def _summary_structure():
     from jaxslam.grid.driver import summarise
     from jaxslam.grid.types import GridSlamInfo
 
-    dummy = GridSlamInfo(*([jnp.zeros((1,))] * len(GridSlamInfo._fields)))
-    return jax.tree_util.tree_structure(summarise(dummy))
+    # shapes only: summarising arrays would compile a small program per output
+    dummy = GridSlamInfo(*([jax.ShapeDtypeStruct((1,), jnp.float32)] * len(GridSlamInfo._fields)))
+    return jax.tree_util.tree_structure(jax.eval_shape(summarise, dummy))
 
 
 class GridLiveLog:
@@ -321,6 +322,7 @@ class GridLiveLog:
             self._scan_at(scan, path[number + 1], laser_offset)
         viz.trajectory(path)
         layout = PagedLayout(**self.static["layout"])
-        cells, origin = stitch(state.maps.pool, state.maps.tables[best], state.maps.corner, layout)
+        # the table row on the host: indexing the device array is a program of its own
+        cells, origin = stitch(state.maps.pool, np.asarray(state.maps.tables)[best], state.maps.corner, layout)
         viz.grid_map(cells.astype(np.float32) * unit, layout.resolution, origin)
         self._logged = int(done)
