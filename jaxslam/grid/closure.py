@@ -42,7 +42,8 @@ score like the local match), the minimum keeps sparse scenes, where even right
 matches score 0.1-0.3, from taking a chance alignment.
 
 A candidate is *held* (its world correction :math:`C = x^* \ominus_w x_0`, that is
-:math:`x^* = C \oplus x_0`, in the state's ``closure_memory``) and confirmed by the
+:math:`x^* = C \oplus x_0`, in the state's ``closure``, a
+:class:`~jaxslam.grid.types.ClosureState`) and confirmed by the
 scans that follow: each of them climbs from :math:`C \oplus x_0'` (its own local
 match moved by the held correction) and must pass the same tests. After
 ``closure_confirm`` (3) wins in a row the candidate replaces the local match; one loss
@@ -154,6 +155,7 @@ from jaxslam.core import se2
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.climbs import Phase, best_of
 from jaxslam.grid.score import cell_coords
+from jaxslam.grid.types import ClosureState
 
 POOL = 2
 """Fine cells per coarse cell along each axis (10 cm coarse cells at 5 cm)."""
@@ -178,10 +180,6 @@ REFINE = 4
 FAST_SHARE = 0.2
 """Share of ``closure_watch`` after which ``closure_undo_fast`` can undo a closure (with
 at least two scans watched: a robot standing still repeats one scan's conflict)."""
-
-MEMORY = 15
-"""Length of the state's ``closure_memory`` (:func:`closure_phases`)."""
-
 
 def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation) -> tuple[Array, Array]:
     r"""The coarse map around ``centre (2,)`` (world, m): ``(coarse (n, n) [row, col],
@@ -332,10 +330,11 @@ def conflict_fraction(read: CellReader, frame, pose: Array, local_points: Array,
 
 
 class Watch(NamedTuple):
-    """The closure memory read for one scan, before its climbs (:func:`watch_closure`)."""
+    """The closure state read for one scan, before its climbs (:func:`watch_closure`)."""
 
     conflict: Array  # () conflict_fraction at the local match
-    held: Array  # (4,) the held candidate's correction C and its wins
+    held: Array  # (3,) the held candidate's correction C
+    held_scans: Array  # () the scans it won
     travelled: Array  # () odometry since the last closure
     applied: Array  # (3,) the last closure's correction A
     watching: Array  # () bool, still watched after this scan
@@ -349,31 +348,31 @@ class Watch(NamedTuple):
     @staticmethod
     def empty(dtype) -> "Watch":
         zero, no = jnp.zeros((), dtype), jnp.asarray(False)
-        return Watch(zero, jnp.zeros((4,), dtype), zero, jnp.zeros((3,), dtype), no, zero, zero, zero, no, no, no)
+        pose = jnp.zeros((3,), dtype)
+        return Watch(zero, pose, zero, zero, pose, no, zero, zero, zero, no, no, no)
 
 
 def watch_closure(read: CellReader, frame, matched: Array, local_points: Array, weights: Array,
-                  laser_offset: Array, count: Array, memory: Array, params) -> Watch:
+                  laser_offset: Array, count: Array, memory: ClosureState, params) -> Watch:
     """The watch of the last closure and the held candidate, read from ``memory`` with
     the local match's conflict (see :func:`closure_phases`)."""
     dtype = matched.dtype
     conflict = conflict_fraction(read, frame, matched, local_points, weights, laser_offset, count)
-    held = memory[:4]
-    travelled = memory[4]
-    applied = memory[5:8]
-    watching = memory[8] > 0
-    conflict_sum = memory[9] + jnp.where(watching, conflict, 0.0)
-    conflict_count = memory[10] + jnp.where(watching, 1.0, 0.0)
-    before = memory[11]
-    refused = memory[8] < 0
+    travelled = memory.travelled
+    applied = memory.applied
+    watching = memory.watch > 0
+    conflict_sum = memory.conflict_sum + jnp.where(watching, conflict, 0.0)
+    conflict_count = memory.conflict_count + jnp.where(watching, 1.0, 0.0)
+    before = memory.before
+    refused = memory.watch < 0
     undo = watching & (
         ((travelled >= jnp.asarray(params.closure_watch, dtype))
          & (conflict_sum > jnp.asarray(params.closure_undo, dtype) * conflict_count))
         | ((conflict_count >= 2) & (travelled >= FAST_SHARE * jnp.asarray(params.closure_watch, dtype))
            & (conflict_sum > jnp.asarray(params.closure_undo_fast, dtype) * conflict_count)))
     watching = watching & ~undo & (travelled < jnp.asarray(params.closure_watch, dtype))
-    return Watch(conflict, held, travelled, applied.astype(dtype), watching, conflict_sum, conflict_count, before,
-                 refused, undo, held[3] > 0)
+    return Watch(conflict, memory.held, memory.held_scans, travelled, applied.astype(dtype), watching, conflict_sum,
+                 conflict_count, before, refused, undo, memory.held_scans > 0)
 
 
 def closure_carry(dtype) -> dict:
@@ -383,7 +382,7 @@ def closure_carry(dtype) -> dict:
 
 
 def closure_phases(read: CellReader, frame, local_points: Array, weights: Array, laser_offset: Array,
-                   count: Array, memory: Array, params, config) -> list[Phase]:
+                   count: Array, memory: ClosureState, params, config) -> list[Phase]:
     r"""The climbs of the loop-closure search for the local match in ``carry``
     (``matched``, ``score``: raw score over ``count`` beams), as phases of the
     tracking's one climb (:mod:`jaxslam.grid.climbs`); :func:`closure_outcome` then
@@ -393,8 +392,8 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
     tracking applies whatever its score, the number of scans since that closure was
     taken and its correction :math:`A`, for :func:`jaxslam.grid.undone_closures.take_back`).
 
-    ``memory (MEMORY,)`` (the state's ``closure_memory``, this scan's odometry
-    included) holds the candidate held from the scans before, the world correction
+    ``memory`` (the state's :class:`~jaxslam.grid.types.ClosureState`, this scan's
+    odometry included) holds the candidate held from the scans before, the world correction
     :math:`C` (pose ``(x, y, θ)``, the candidate :math:`C \oplus x_0`), the number of
     scans it won (0: none), the odometry distance :math:`d` since the last closure, the
     correction :math:`A` of the last closure taken (as the tracking applied it; set by
@@ -422,7 +421,7 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
     lies within ``closure_jump`` of the one the search found for it are refused from
     then on (the same alias would win again).
     """
-    dtype = memory.dtype
+    dtype = memory.travelled.dtype
     lanes = refine_count(config)
 
     def undo_prepare(lane, carry):
@@ -435,7 +434,7 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
 
     def follow_prepare(lane, carry):
         watch = carry["watch"]
-        return carry, watch.holding, se2.compose(watch.held[:3].astype(dtype), carry["matched"])
+        return carry, watch.holding, se2.compose(watch.held.astype(dtype), carry["matched"])
 
     def follow_take(lane, carry, active, pose, score):
         return {**carry, "followed": jnp.where(active, pose, carry["matched"]),
@@ -477,8 +476,8 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
             Phase(1, False, search_prepare, search_take), Phase(lanes - 1, False, next_prepare, search_take)]
 
 
-def closure_outcome(carry: dict, count: Array, memory: Array,
-                    params) -> tuple[Array, Array, Array, Array, Array, Array]:
+def closure_outcome(carry: dict, count: Array, memory: ClosureState,
+                    params) -> tuple[Array, Array, Array, Array, Array, ClosureState]:
     """The local match after :func:`closure_phases` (``carry``), or the closure that
     replaces it: ``(pose, score, closed, undo, conflict, memory)`` (see
     :func:`closure_phases`)."""
@@ -487,11 +486,11 @@ def closure_outcome(carry: dict, count: Array, memory: Array,
     holding, triggered, undo = watch.holding, carry["searching"], watch.undo
     pose = jnp.where(holding, carry["followed"], jnp.where(triggered, carry["found_pose"], matched))
     found = jnp.where(holding, carry["followed_score"], jnp.where(triggered, carry["found"], score))
-    held, applied, watching = watch.held, watch.applied, watch.watching
+    applied, watching = watch.applied, watch.watching
     conflict_sum, conflict_count, before, refused = watch.conflict_sum, watch.conflict_count, watch.before, watch.refused
     correction = se2.compose(pose, se2.inverse(matched))
     jump = jnp.asarray(params.closure_jump, dtype)
-    candidate = memory[12:15]
+    candidate = memory.found
     alias = (refused | undo) & (jnp.hypot(correction[0] - candidate[0], correction[1] - candidate[1]) <= jump)
     wins = (
         (holding | triggered) & ~alias
@@ -500,36 +499,37 @@ def closure_outcome(carry: dict, count: Array, memory: Array,
         & (jnp.hypot(pose[0] - matched[0], pose[1] - matched[1]) <= jnp.maximum(
             jump, jnp.asarray(params.closure_drift, dtype) * travelled))
     )
-    scans = jnp.where(wins, held[3] + 1, 0.0)
+    scans = jnp.where(wins, watch.held_scans + 1, 0.0)
     closed = wins & (scans >= jnp.asarray(params.closure_confirm, dtype))
-    held = jnp.where(wins & ~closed, jnp.concatenate([correction, scans[None]]), jnp.zeros((4,), dtype))
+    keep = wins & ~closed
     # watch state: 1 watching the last closure, -1 its correction refused (undone), 0 neither
     state = jnp.where(closed, 1.0, jnp.where(undo | refused, -1.0, jnp.where(watching, 1.0, 0.0)))
-    memory = jnp.concatenate([
-        held,
-        jnp.where(closed, 0.0, travelled)[None],
-        jnp.where(closed, correction, applied),
-        state[None],
-        jnp.where(closed | ~watching, 0.0, conflict_sum)[None],
-        jnp.where(closed | ~watching, 0.0, conflict_count)[None],
-        jnp.where(closed, travelled, jnp.where(undo, 0.0, before))[None],
-        jnp.where(closed, correction, candidate),
-    ])
+    memory = ClosureState(
+        held=jnp.where(keep, correction, jnp.zeros((3,), dtype)),
+        held_scans=jnp.where(keep, scans, jnp.zeros((), dtype)),
+        travelled=jnp.where(closed, 0.0, travelled).astype(dtype),
+        applied=jnp.where(closed, correction, applied),
+        watch=state.astype(dtype),
+        conflict_sum=jnp.where(closed | ~watching, 0.0, conflict_sum),
+        conflict_count=jnp.where(closed | ~watching, 0.0, conflict_count),
+        before=jnp.where(closed, travelled, jnp.where(undo, 0.0, before)),
+        found=jnp.where(closed, correction, candidate),
+    )
     # what an undo takes back, for the path reported
     # (:func:`jaxslam.grid.undone_closures.take_back`): the scans since the closure, A
     taken_back = jnp.where(undo, jnp.concatenate([conflict_count[None], applied.astype(dtype)]), jnp.zeros((4,), dtype))
     return jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, taken_back, watch.conflict, memory
 
 
-def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
+def record_applied(memory: ClosureState, taken: Array, correction: Array) -> ClosureState:
     """``memory`` with :math:`A`, the correction the tracking applied for a closure
     just ``taken`` (its pose over the local match, after the tracking's constraint),
     which an undo takes back."""
-    return memory.at[5:8].set(jnp.where(taken, correction, memory[5:8]))
+    return memory._replace(applied=jnp.where(taken, correction, memory.applied))
 
 
 __all__ = [
-    "BEAM_STRIDE", "FAST_SHARE", "MEMORY", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
+    "BEAM_STRIDE", "FAST_SHARE", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
     "Watch", "candidate_scores", "closure_carry", "closure_outcome", "closure_phases", "coarse_candidates",
     "coarse_window", "conflict_fraction", "record_applied", "refine_count", "watch_closure", "window_half",
 ]

@@ -381,7 +381,7 @@ def run_grid_slam(
     kf_rows = np.flatnonzero(flags)
     kf_poses = best_trajectory(np.asarray(ys["poses"])[kf_rows], np.asarray(ys["ancestors"])[kf_rows], best)
     # a closure still watched at the end is judged on the scans it had (the undo row after the last scan's)
-    end_undo = judge_at_end(state.closure_memory, prm)
+    end_undo = judge_at_end(state.closure, prm)
     undo = reported_undo(ys["track_undo"], end_undo)
     keyframes, trajectory = scan_trajectory(odom[0], flags, kf_poses, ys["motion"], undo)
     kf_poses = take_back(np.concatenate([odom[:1], np.asarray(kf_poses, np.float64)], 0), keyframes, undo)

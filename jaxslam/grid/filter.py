@@ -36,11 +36,10 @@ from jaxslam.core.resampling import (
     selective_resample,
 )
 from jaxslam.runtime.driver import best_particle
-from jaxslam.grid.closure import MEMORY
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.matching import Climb, EllipseBound, climbs_in_turn, get_matcher, gmapping_basis, hill_climb, search_bound
 from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn, scan_log_likelihood
-from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
+from jaxslam.grid.types import ClosureState, GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
 from jaxslam.grid.update import update_paged
 
 
@@ -238,7 +237,7 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
         status=status,
         motion=jnp.zeros((3,), dtype),
         since_keyframe=jnp.zeros((5,), dtype),
-        closure_memory=jnp.zeros((MEMORY,), dtype),
+        closure=ClosureState.empty(dtype),
     )
 
 
@@ -303,7 +302,7 @@ def finish_step(
         status=status,
         motion=state.motion,
         since_keyframe=state.since_keyframe,
-        closure_memory=state.closure_memory,
+        closure=state.closure,
     )
     info = GridSlamInfo(
         poses=map_poses,

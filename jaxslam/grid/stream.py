@@ -332,7 +332,7 @@ class StreamingGridSlam:
         keep it)."""
         motions = np.stack(self._motions) if self._motions else np.zeros((0, 3))
         undos = np.stack(self._undos) if self._undos else np.zeros((0, 4))
-        end = None if self.state is None else judge_at_end(np.asarray(self.state.closure_memory), self.params)
+        end = None if self.state is None else judge_at_end(jax.device_get(self.state.closure), self.params)
         return scan_trajectory(self.odom_poses[0], np.asarray(self._flags, bool), self.keyframe_poses()[1:],
                                motions, reported_undo(undos, end))[1]
 

@@ -144,9 +144,10 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Od
 
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
-    conflict (), memory (MEMORY,), undo (4,))`` (``closed``: the loop-closure search's pose
+    conflict (), memory, undo (4,))`` (``closed``: the loop-closure search's pose
     replaced the local match, or a closure was undone; ``conflict``: the share of its beams
-    ending in known free space; ``memory``: the state's ``closure_memory`` after this scan;
+    ending in known free space; ``memory``: the state's
+    :class:`~jaxslam.grid.types.ClosureState` after this scan;
     ``undo``: what an undo took back, zeros otherwise; see :mod:`jaxslam.grid.closure`)."""
     dtype = state.poses.dtype
     best = best_particle(state)
@@ -154,7 +155,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     predicted = se2.compose(state.motion, increment.astype(dtype))
     if not config.tracking:
         return (predicted, jnp.zeros((), dtype), jnp.asarray(False), jnp.asarray(False), jnp.zeros((), dtype),
-                state.closure_memory, jnp.zeros((4,), dtype))
+                state.closure, jnp.zeros((4,), dtype))
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
@@ -174,9 +175,9 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     turned_scores = score_fn(turned)
     retry = turned[jnp.argmax(turned_scores)]
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
-    memory = state.closure_memory
+    memory = state.closure
     if config.closure:
-        memory = memory.at[4].add(jnp.hypot(increment[0], increment[1]).astype(dtype))
+        memory = memory._replace(travelled=memory.travelled + jnp.hypot(increment[0], increment[1]).astype(dtype))
     lanes = refine_count(config)
     carry = {"start": guess, "matched": guess, "score": jnp.full((), -jnp.inf, dtype), "origin": guess,
              "searching": jnp.asarray(False), "candidates": jnp.zeros((lanes, 3), dtype),
@@ -395,13 +396,13 @@ def per_scan(keyframe_step):
             new = new._replace(
                 motion=jnp.where(applied, jnp.zeros_like(motion), state.motion),
                 since_keyframe=jnp.where(applied, jnp.zeros_like(since), state.since_keyframe),
-                closure_memory=jnp.where(applied, memory, state.closure_memory),
+                closure=jax.tree_util.tree_map(lambda a, b: jnp.where(applied, a, b), memory, state.closure),
             )
             return new, info._replace(track_score=score, track_accepted=accepted, track_closed=closed,
                                       track_conflict=conflict, track_undo=undo)
 
         def between(key, state):
-            state = state._replace(motion=motion, since_keyframe=since, closure_memory=memory)
+            state = state._replace(motion=motion, since_keyframe=since, closure=memory)
             return state, empty_info(state, config)._replace(track_score=score, track_accepted=accepted,
                                                              track_closed=closed, track_conflict=conflict,
                                                              track_undo=undo)

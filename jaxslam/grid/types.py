@@ -401,6 +401,44 @@ def default_params(
     return GridSlamParams(**{k: np.asarray(v, real) for k, v in values.items()})
 
 
+class ClosureState(NamedTuple):
+    r"""What the loop-closure search (:mod:`jaxslam.grid.closure`) carries from scan to
+    scan, in the filter's float dtype.
+
+    Attributes:
+        held: ``(3,)`` the world correction :math:`C` of the candidate held from the
+            scans before (the candidate pose is :math:`C \oplus x_0`).
+        held_scans: ``()`` the scans in a row it won (0: no candidate held).
+        travelled: ``()`` the odometry distance (m) since the last closure.
+        applied: ``(3,)`` the correction :math:`A` of the last closure taken, as the
+            tracking applied it (:func:`jaxslam.grid.closure.record_applied`).
+        watch: ``()`` 1 while the last closure is watched, -1 once its correction was
+            refused (undone), 0 neither.
+        conflict_sum: ``()`` the sum of the watched scans' shares of beams ending in
+            known free space.
+        conflict_count: ``()`` the number of scans watched.
+        before: ``()`` the odometry distance before the last closure (restored by an undo).
+        found: ``(3,)`` the correction the search found for the last closure (an undone
+            closure refuses candidates near it).
+    """
+
+    held: Array
+    held_scans: Array
+    travelled: Array
+    applied: Array
+    watch: Array
+    conflict_sum: Array
+    conflict_count: Array
+    before: Array
+    found: Array
+
+    @classmethod
+    def empty(cls, dtype) -> "ClosureState":
+        """No candidate held, no closure taken, nothing travelled."""
+        zero, pose = jnp.zeros((), dtype), jnp.zeros((3,), dtype)
+        return cls(pose, zero, zero, pose, zero, zero, zero, zero, pose)
+
+
 class GridSlamState(NamedTuple):
     """Filter state; ``maps.pool`` is the large buffer (donate it).
 
@@ -417,9 +455,7 @@ class GridSlamState(NamedTuple):
     status: MapStatus
     motion: Array  # (3,) tracked motion since the last keyframe (jaxslam.grid.tracking)
     since_keyframe: Array  # (5,) distance, rotation, time, scans and refused tracking matches since the last keyframe
-    # (5,) loop closure (jaxslam.grid.closure): the candidate held (world correction (3,),
-    # scans won) and the odometry distance (m) since the last closure
-    closure_memory: Array
+    closure: "ClosureState"  # the loop-closure search's memory (jaxslam.grid.closure)
 
 
 class GridSlamInfo(NamedTuple):
@@ -483,6 +519,7 @@ class Scan(NamedTuple):
 
 
 __all__ = [
+    "ClosureState",
     "GridSlamConfig",
     "GridSlamInfo",
     "GridSlamParams",

@@ -43,14 +43,14 @@ def put_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndarr
     return _move_windows(poses, scans, undo, inverse=False)
 
 
-def judge_at_end(memory: np.ndarray, params) -> np.ndarray:
+def judge_at_end(memory, params) -> np.ndarray:
     r"""Host: the closure still watched when the run ends, judged on the scans it had.
 
     The watch of :func:`jaxslam.grid.closure.closure_phases` runs over ``closure_watch`` m of
     odometry; a log that ends sooner leaves its last closure unjudged. The path reported
-    judges it on the :math:`n` scans watched (``memory[10]``, after the closure's own
+    judges it on the :math:`n` scans watched (``memory.conflict_count``, after the closure's own
     scan), whose shares of beams ending in known free space sum to :math:`\Sigma`
-    (``memory[9]``): it is undone where
+    (``memory.conflict_sum``): it is undone where
 
     .. math:: n \ge 2, \qquad \Sigma > u_{end}\, n
 
@@ -61,18 +61,17 @@ def judge_at_end(memory: np.ndarray, params) -> np.ndarray:
     1 %; after 42 % / 56 % / 56 % of the undone ones.
 
     Args:
-        memory: ``(MEMORY,)`` the final state's ``closure_memory``.
+        memory: the final state's :class:`~jaxslam.grid.types.ClosureState` (host values).
         params: the run's :class:`~jaxslam.grid.types.GridSlamParams` (host values).
 
     Returns:
         ``(4,)`` the row :func:`take_back` reads after the last scan's: ``[n + 1, A]``
         (the closure's scan and the ``n`` watched ones, ``A`` the correction the
-        tracking applied, ``memory[5:8]``), or zeros.
+        tracking applied, ``memory.applied``), or zeros.
     """
-    memory = np.asarray(memory, np.float64)
-    count, total = memory[10], memory[9]
-    if memory[8] > 0 and count >= 2 and total > float(params.closure_undo_end) * count:
-        return np.concatenate([[count + 1.0], memory[5:8]])
+    count, total = float(memory.conflict_count), float(memory.conflict_sum)
+    if float(memory.watch) > 0 and count >= 2 and total > float(params.closure_undo_end) * count:
+        return np.concatenate([[count + 1.0], np.asarray(memory.applied, np.float64)])
     return np.zeros(4)
 
 

@@ -5,6 +5,7 @@ alone."""
 import dataclasses
 import math
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,11 +13,11 @@ import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.grid.closure import (
-    MEMORY, POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
+    POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
 )
 from jaxslam.grid.undone_closures import judge_at_end, put_back, reported_undo, take_back
 from jaxslam.grid.map import GridSpec, dense_reader
-from jaxslam.grid.types import default_params
+from jaxslam.grid.types import ClosureState, default_params
 from jaxslam.grid.tracking import track as _track
 from tests.grid.sim_state import state_and_scans
 
@@ -145,7 +146,7 @@ def tracked(sim):
         state, scans, params, config = state_and_scans(sim)
     assert config.closure  # SRUPF-GM's default
     # A long way (100 m of odometry) since the last closure: no bound on the jump.
-    state = state._replace(closure_memory=state.closure_memory.at[4].set(100.0))
+    state = state._replace(closure=_memory(travelled=100.0))
     # The closure search alone. These tests stand a loop's drift in for one increment
     # metres off; SRUPF-GM's recovery from odometry jumps (jaxslam.grid.recovery, on by
     # default) takes such an increment within its 1.5 m search before the closure
@@ -209,7 +210,7 @@ def test_the_reach_grows_with_the_distance_since_the_last_closure(sim, tracked):
     track, state, scans, params, config = tracked
     at_once = params._replace(closure_confirm=np.float64(1.0))
     assert config.closure_radius_far == 10.0 and float(params.closure_reach_rate) == pytest.approx(0.02)
-    far_state = state._replace(closure_memory=state.closure_memory.at[4].set(450.0))
+    far_state = state._replace(closure=_memory(travelled=450.0))
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[7.2, 0.3, math.radians(2.0)]]))[0]
@@ -232,8 +233,7 @@ def test_a_good_match_is_left_alone(sim, tracked):
         got = track(state, wrong, scans[3], params, config)
         without = track(state, wrong, scans[3], params._replace(closure_trigger=np.float64(0.0)), config)
     assert float(got[1]) > float(params.closure_trigger) and not bool(got[3])
-    for a, b in zip(got, without, strict=True):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    chex.assert_trees_all_equal(got, without)
 
 
 def test_a_closure_that_does_not_beat_the_gain_is_refused(sim, tracked):
@@ -262,19 +262,20 @@ def test_a_candidate_is_held_until_confirmed(sim, tracked):
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
         motion, _, _, closed, _, held, _ = track(state, wrong, scans[3], confirm, config)
         plain = track(state, wrong, scans[3], confirm._replace(closure_trigger=np.float64(0.0)), config)
-        assert not bool(closed) and float(held[3]) == 1.0
+        assert not bool(closed) and float(held.held_scans) == 1.0
         np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
         # The next scan (here the same one again) follows and closes.
-        motion2, _, _, closed2, _, held2, _ = track(state._replace(closure_memory=held), wrong, scans[3], confirm, config)
+        motion2, _, _, closed2, _, held2, _ = track(state._replace(closure=held), wrong, scans[3], confirm, config)
         error2 = se2_between(true_step[None], np.asarray(motion2)[None])[0]
-        assert bool(closed2) and not np.any(np.asarray(held2)[:5]), held2
+        assert bool(closed2) and not np.any(np.asarray(held2.held)) and float(held2.held_scans) == 0.0, held2
+        assert float(held2.travelled) == 0.0
         assert np.hypot(*error2[:2]) < 0.05 and abs(error2[2]) < math.radians(0.5), error2
         # A wrong held correction loses against a good local match and is dropped.
         good = true_step + np.array([0.03, -0.02, 0.04])
-        bogus = state._replace(closure_memory=jnp.zeros(MEMORY).at[:5].set(jnp.asarray([2.0, 0.0, 0.0, 1.0, 100.0])))
+        bogus = state._replace(closure=_memory(held=[2.0, 0.0, 0.0], held_scans=1.0, travelled=100.0))
         got = track(bogus, good, scans[3], confirm, config)
         fresh = track(state, good, scans[3], confirm, config)
-    assert not bool(got[3]) and not np.any(np.asarray(got[5][:4]))
+    assert not bool(got[3]) and not np.any(np.asarray(got[5].held)) and float(got[5].held_scans) == 0.0
     np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(fresh[0]))
 
 
@@ -288,20 +289,25 @@ def test_a_jump_beyond_the_drift_since_the_last_closure_is_refused(sim, tracked)
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        fresh = state._replace(closure_memory=jnp.zeros(MEMORY))
+        fresh = state._replace(closure=_memory())
         refused = track(fresh, wrong, scans[3], at_once, config)
         step = float(np.hypot(*wrong[:2]))
         loose = at_once._replace(closure_drift=np.float64(1.7 / step))
         closed = track(fresh, wrong, scans[3], loose, config)
-    assert not bool(refused[3]) and float(refused[5][4]) == pytest.approx(step)
-    assert bool(closed[3]) and float(closed[5][4]) == 0.0
+    assert not bool(refused[3]) and float(refused[5].travelled) == pytest.approx(step)
+    assert bool(closed[3]) and float(closed[5].travelled) == 0.0
+
+
+def _memory(**fields) -> ClosureState:
+    """A float64 closure state: empty but for ``fields``."""
+    empty = ClosureState(*(np.zeros(np.shape(f)) for f in ClosureState.empty(np.float32)))
+    return empty._replace(**{k: np.asarray(v, np.float64) for k, v in fields.items()})
 
 
 def _watched(state, applied, travelled, conflict_sum, conflict_count, before=7.0, mode=1.0):
-    memory = jnp.zeros(MEMORY).at[4].set(travelled).at[5:8].set(jnp.asarray(applied))
-    memory = memory.at[8].set(mode).at[9].set(conflict_sum).at[10].set(conflict_count).at[11].set(before)
-    memory = memory.at[12:15].set(jnp.asarray(applied))
-    return state._replace(closure_memory=memory)
+    return state._replace(closure=_memory(travelled=travelled, applied=applied, watch=mode,
+                                          conflict_sum=conflict_sum, conflict_count=conflict_count, before=before,
+                                          found=applied))
 
 
 def _closed_off(sim, state):
@@ -334,25 +340,26 @@ def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, 
                            closure_trigger=np.float64(0.0))
     with jax.enable_x64(True):
         true_step, wrong, applied = _closed_off(sim, state)
-        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3], undo, config)
+        plain = track(state._replace(closure=_memory()), wrong, scans[3], undo, config)
         high = track(_watched(state, applied, 5.5, 3.0, 10.0), wrong, scans[3], undo, config)
         low = track(_watched(state, applied, 5.5, 0.5, 10.0), wrong, scans[3], undo, config)
         early = track(_watched(state, applied, 2.0, 3.0, 10.0), wrong, scans[3], undo, config)
         plain_error = se2_between(true_step[None], np.asarray(plain[0])[None])[0]
     assert np.hypot(*plain_error[:2]) > 1.0  # the local match alone stays off
     assert bool(high[3]) and _on_true_pose(true_step, high), high[0]
-    memory = np.asarray(high[5])
-    assert memory[8] == -1.0 and memory[4] == pytest.approx(5.5 + float(np.hypot(*wrong[:2])) + 7.0)
-    np.testing.assert_allclose(memory[5:8], applied, atol=1e-12)
+    memory = high[5]
+    assert float(memory.watch) == -1.0
+    assert float(memory.travelled) == pytest.approx(5.5 + float(np.hypot(*wrong[:2])) + 7.0)
+    np.testing.assert_allclose(np.asarray(memory.applied), applied, atol=1e-12)
     # what the undo took back, for the path: the 10 watched scans and this one, and A
     assert float(high[6][0]) == 11.0
     np.testing.assert_allclose(np.asarray(high[6][1:]), applied, atol=1e-12)
     for kept, watching in ((low, 0.0), (early, 1.0)):
         assert not bool(kept[3])
         np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(plain[0]))
-        assert float(kept[5][8]) == watching
+        assert float(kept[5].watch) == watching
         np.testing.assert_array_equal(np.asarray(kept[6]), np.zeros(4))
-    assert float(early[5][10]) == 11.0 and float(early[5][9]) == pytest.approx(3.0 + float(early[4]))
+    assert float(early[5].conflict_count) == 11.0 and float(early[5].conflict_sum) == pytest.approx(3.0 + float(early[4]))
 
 
 def test_a_closure_with_the_undone_correction_is_refused(sim, tracked):
@@ -364,14 +371,14 @@ def test_a_closure_with_the_undone_correction_is_refused(sim, tracked):
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        fresh = state._replace(closure_memory=jnp.zeros(MEMORY).at[4].set(100.0))
+        fresh = state._replace(closure=_memory(travelled=100.0))
         closed = track(fresh, wrong, scans[3], at_once, config)
-        correction = np.asarray(closed[5][12:15])
+        correction = np.asarray(closed[5].found)
         same = track(_watched(state, correction, 100.0, 0.0, 0.0, mode=-1.0), wrong, scans[3], at_once, config)
         other = track(_watched(state, correction + [3.0, 0.0, 0.0], 100.0, 0.0, 0.0, mode=-1.0), wrong, scans[3],
                       at_once, config)
-    assert bool(closed[3]) and float(closed[5][8]) == 1.0 and np.hypot(*correction[:2]) > 1.0
-    assert not bool(same[3]) and float(same[5][8]) == -1.0
+    assert bool(closed[3]) and float(closed[5].watch) == 1.0 and np.hypot(*correction[:2]) > 1.0
+    assert not bool(same[3]) and float(same[5].watch) == -1.0
     assert bool(other[3])
     np.testing.assert_array_equal(np.asarray(other[0]), np.asarray(closed[0]))
 
@@ -388,7 +395,7 @@ def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(s
                            closure_undo_fast=np.float64(0.4), closure_trigger=np.float64(0.0))
     with jax.enable_x64(True):
         true_step, wrong, applied = _closed_off(sim, state)
-        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3], fast, config)
+        plain = track(state._replace(closure=_memory()), wrong, scans[3], fast, config)
         # the mean after this scan is at least (0.9 + 0) / 2 = 0.45 whatever this scan's conflict
         early = track(_watched(state, applied, 4.0, 0.9, 1.0), wrong, scans[3], fast, config)
         # a sum no single scan can reach (0.9 + this scan's), counted as one scan
@@ -399,11 +406,11 @@ def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(s
     step = float(np.hypot(*wrong[:2]))
     assert 1.0 < step < 4.0
     assert bool(early[3]) and _on_true_pose(true_step, early), early[0]
-    assert float(early[5][8]) == -1.0
+    assert float(early[5].watch) == -1.0
     for kept in (one_scan, too_soon, off):
         assert not bool(kept[3])
         np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(plain[0]))
-        assert float(kept[5][8]) == 1.0
+        assert float(kept[5].watch) == 1.0
 
 
 def test_no_closure_is_taken_while_another_is_watched(sim, tracked):
@@ -420,18 +427,18 @@ def test_no_closure_is_taken_while_another_is_watched(sim, tracked):
     other = np.array([0.3, 0.0, 0.0])
     with jax.enable_x64(True):
         true_step, wrong, _ = _closed_off(sim, state)
-        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3],
+        plain = track(state._replace(closure=_memory()), wrong, scans[3],
                       at_once._replace(closure_trigger=np.float64(0.0)), config)
         blocked = track(_watched(state, other, 2.0, 0.0, 2.0), wrong, scans[3], at_once, config)
         nested = track(_watched(state, other, 2.0, 0.0, 2.0), wrong, scans[3],
                        at_once._replace(closure_nest=np.float64(1.0)), config)
         after = track(_watched(state, other, 10.5, 0.0, 10.0), wrong, scans[3], at_once, config)
-    assert not bool(blocked[3]) and float(blocked[5][8]) == 1.0
+    assert not bool(blocked[3]) and float(blocked[5].watch) == 1.0
     np.testing.assert_array_equal(np.asarray(blocked[0]), np.asarray(plain[0]))
     assert not _on_true_pose(true_step, plain)
     for closed in (nested, after):
         assert bool(closed[3]) and _on_true_pose(true_step, closed), closed[0]
-        assert float(closed[5][8]) == 1.0 and float(closed[5][4]) == 0.0
+        assert float(closed[5].watch) == 1.0 and float(closed[5].travelled) == 0.0
 
 
 def test_the_path_takes_back_an_undone_closure_on_the_scans_it_moved():
@@ -481,9 +488,7 @@ def test_a_closure_still_watched_at_the_end_is_judged_on_the_scans_it_had():
     reported[33:] = se2_compose(correction[None], true[33:])
 
     def memory(mode, total, count):
-        m = np.zeros(MEMORY)
-        m[5:8], m[8], m[9], m[10] = correction, mode, total, count
-        return m
+        return _memory(applied=correction, watch=mode, conflict_sum=total, conflict_count=count)
 
     end = judge_at_end(memory(1.0, 6 * 0.3, 6.0), params)
     np.testing.assert_allclose(end, [7.0, *correction])

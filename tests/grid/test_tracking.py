@@ -4,6 +4,7 @@ the fallback of an untrusted match, and the filter's own pose for every scan."""
 import dataclasses
 import functools
 
+import chex
 import jax
 import numpy as np
 import pytest
@@ -170,8 +171,7 @@ def test_coarse_to_fine_tracking_corrects_a_wrong_increment(sim):
         assert stuck[2] > 0.1, stuck  # the plain climb's worse optimum
         assert after[2] < 0.01 and np.hypot(*after[:2]) < 0.02, after
         particles_only = track(state, wrong, scans[3], params, dataclasses.replace(coarse, coarse_tracking=False))
-        for a, b in zip(plain, particles_only, strict=True):
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        chex.assert_trees_all_equal(plain, particles_only)
 
 
 def test_constrained_shift_drops_the_flat_direction_of_a_corridor():
