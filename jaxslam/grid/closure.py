@@ -31,8 +31,8 @@ the tracking's own matcher and score). The best refined pose
 .. math:: s_0 < \tau_{trigger}, \qquad f_0 \ge f_{min}, \qquad s^* \ge s_{min},
     \qquad s^* \ge g\, s_0, \qquad |x^*_{xy} - x_{0,xy}| \le \max(j, \beta d)
 
-(scores as fractions of the matched beams; ``closure_trigger``, ``closure_conflict``,
-``closure_min_score``, ``closure_gain``, ``closure_jump``, ``closure_drift``), with
+(scores as fractions of the matched beams; ``closure.trigger``, ``closure.conflict``,
+``closure.min_score``, ``closure.gain``, ``closure.jump``, ``closure.drift``), with
 :math:`f_0` the fraction of beams whose end point at :math:`x_0` lies in known free
 space (:func:`conflict_fraction`, recorded for every scan as ``Info.track_conflict``)
 and :math:`d` the odometry distance since the last closure. The search runs only
@@ -46,7 +46,7 @@ A candidate is *held* (its world correction :math:`C = x^* \ominus_w x_0`, that 
 :class:`~jaxslam.grid.types.ClosureState`) and confirmed by the
 scans that follow: each of them climbs from :math:`C \oplus x_0'` (its own local
 match moved by the held correction) and must pass the same tests. After
-``closure_confirm`` (3) wins in a row the candidate replaces the local match; one loss
+``closure.confirm`` (3) wins in a row the candidate replaces the local match; one loss
 drops it (:func:`closure_phases`). The bound on the jump is the drift the tracking can
 have gathered since the last closure, :math:`\beta` = 0.5 m per metre of odometry,
 and at least :math:`j` = 0.5 m: right after a closure the robot is on the old map,
@@ -62,24 +62,24 @@ few dozen scans. A false closure that passes every test at the candidate still s
 itself afterwards, which the watch below uses. Three tests at the candidate did not
 separate false closures from right ones on MIT Killian (right and wrong judged by the
 benchmark's relations), so they are off or absent: the conflict test
-(``closure_conflict``, default 0), a margin over the best candidate at least 1 m away,
+(``closure.conflict``, default 0), a margin over the best candidate at least 1 m away,
 and the share of beams in known free space at the candidate. A refused right closure
 leaves the drift in place until the next chance, which may be far.
 
-**Watch and undo** (``closure_undo``; 1: off). Averaged over ``closure_watch`` m of
+**Watch and undo** (``closure.undo``; 1: off). Averaged over ``closure.watch`` m of
 odometry after a closure, the share of beams ending in known free space separates
 false closures from right ones far better than any test at the candidate: the scans
 that show an alias come after the jump. So a closure taken is watched and undone where
-that mean exceeds ``closure_undo`` (0.11: lower thresholds undo right closures along
+that mean exceeds ``closure.undo`` (0.11: lower thresholds undo right closures along
 long corridors, whose kept closures watch at up to about 0.11); the undo takes back the
 correction the tracking applied (the closure's, less what
 :func:`jaxslam.grid.tracking.constrained_pose` dropped), whatever the match at the
 undone pose scores, and refuses the same candidate afterwards. The map keeps what the
 scans in between wrote. The search, with its watch and undo, is SRUPF-GM's default
-(:func:`jaxslam.grid.experiment.make_config`); the GMapping-style filter, a baseline
+(:data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`); the GMapping-style filter, a baseline
 for GMapping, which has no such search, keeps it off.
 
-**Fast undo** (``closure_undo_fast``; 1: off, the default) undoes a closure before the
+**Fast undo** (``closure.undo_fast``; 1: off, the default) undoes a closure before the
 watch ends, once the watched share averages over it on at least two scans and
 :data:`FAST_SHARE` of the watch. It undoes false closures a few scans sooner but also
 right ones in sparse scenes, so it is an option.
@@ -91,13 +91,13 @@ poses are reported in the frame it kept, :math:`A^{-1} \oplus x_s` (as the path 
 lineage is reported after the resamplings that chose it). The filter itself is
 unchanged; ``Info.track_undo`` records what each undo took back.
 
-**No closure inside a watch** (``closure_nest``; 0: the default). After a false closure
+**No closure inside a watch** (``closure.nest``; 0: the default). After a false closure
 the tracking's matches score low and the search starts again; a closure taken inside
 the watch would restart it, and the first one would never be judged. So the search
-waits until the watch has ended (kept or undone); ``closure_nest`` 1 lets it nest.
+waits until the watch has ended (kept or undone); ``closure.nest`` 1 lets it nest.
 
 **The end of the run** (:func:`jaxslam.grid.undone_closures.judge_at_end`,
-``closure_undo_end``). A log can end inside a watch; the path reported judges such a
+``closure.undo_end``). A log can end inside a watch; the path reported judges such a
 closure on the scans it had, with a higher bar (0.2) because fewer scans are averaged.
 Only the reported path and keyframe poses move; the filter is unchanged.
 
@@ -107,7 +107,7 @@ at 8 m the window holds more aliases than right closures gain. The candidates gr
 :math:`R^2` (63,000 at 6 m against 29,000 at 4 m), on the scans under the trigger only.
 
 **Reach that grows with the distance since the last closure.** Where
-``closure_reach_rate`` :math:`\gamma` times the odometry distance :math:`d` since the
+``closure.reach_rate`` :math:`\gamma` times the odometry distance :math:`d` since the
 last closure exceeds ``R``, a second coarse stage (``config.closure_radius_far``,
 10 m) scores the candidates of the near search's square and those within
 :math:`\min(\gamma d, R_{far})` of :math:`x_0` (a disc: the drift it bounds has no
@@ -178,7 +178,7 @@ REFINE = 4
 """Headings whose best candidate is refined on the full map."""
 
 FAST_SHARE = 0.2
-"""Share of ``closure_watch`` after which ``closure_undo_fast`` can undo a closure (with
+"""Share of ``closure.watch`` after which ``closure.undo_fast`` can undo a closure (with
 at least two scans watched: a robot standing still repeats one scan's conflict)."""
 
 def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation) -> tuple[Array, Array]:
@@ -289,7 +289,7 @@ def coarse_candidates(read: CellReader, frame, local_points: Array, weights: Arr
     shifts = jnp.asarray(np.arange(-m, m + 1) * step, dtype)
     turns = jnp.asarray(np.arange(-k, k + 1) * TURN_STEP, dtype)
 
-    coarse, corner = coarse_window(read, frame, start[:2], window_half(frame, radius), params.occ_saturation)
+    coarse, corner = coarse_window(read, frame, start[:2], window_half(frame, radius), params.map.occ_saturation)
     idx = np.arange(0, local_points.shape[0], BEAM_STRIDE)
     points = local_points[idx]
     ranges = jnp.sqrt(jnp.sum(points * points, -1))
@@ -366,11 +366,11 @@ def watch_closure(read: CellReader, frame, matched: Array, local_points: Array, 
     before = memory.before
     refused = memory.watch < 0
     undo = watching & (
-        ((travelled >= jnp.asarray(params.closure_watch, dtype))
-         & (conflict_sum > jnp.asarray(params.closure_undo, dtype) * conflict_count))
-        | ((conflict_count >= 2) & (travelled >= FAST_SHARE * jnp.asarray(params.closure_watch, dtype))
-           & (conflict_sum > jnp.asarray(params.closure_undo_fast, dtype) * conflict_count)))
-    watching = watching & ~undo & (travelled < jnp.asarray(params.closure_watch, dtype))
+        ((travelled >= jnp.asarray(params.closure.watch, dtype))
+         & (conflict_sum > jnp.asarray(params.closure.undo, dtype) * conflict_count))
+        | ((conflict_count >= 2) & (travelled >= FAST_SHARE * jnp.asarray(params.closure.watch, dtype))
+           & (conflict_sum > jnp.asarray(params.closure.undo_fast, dtype) * conflict_count)))
+    watching = watching & ~undo & (travelled < jnp.asarray(params.closure.watch, dtype))
     return Watch(conflict, memory.held, memory.held_scans, travelled, applied.astype(dtype), watching, conflict_sum,
                  conflict_count, before, refused, undo, memory.held_scans > 0)
 
@@ -408,17 +408,17 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
     .. math:: s(x) \ge s_{min}\, n, \qquad s(x) \ge g\, s_0, \qquad
         |x_{xy} - x_{0,xy}| \le \max(j, \beta d), \qquad |C_{xy} - A_{xy}| > j \text{ after an undo}
 
-    (``closure_min_score``, ``closure_gain``, ``closure_jump``, ``closure_drift``), and
-    replaces the match once it has won ``closure_confirm`` scans in a row; the held
+    (``closure.min_score``, ``closure.gain``, ``closure.jump``, ``closure.drift``), and
+    replaces the match once it has won ``closure.confirm`` scans in a row; the held
     candidate returned is then empty again, as it is after a loss, and :math:`d`
     restarts from 0.
 
-    Watch and undo: over the ``closure_watch`` m of odometry after a closure, the
+    Watch and undo: over the ``closure.watch`` m of odometry after a closure, the
     conflicts of the local matches (in the closed frame) are averaged; where the mean
-    exceeds ``closure_undo`` the beams keep ending in space the old map has seen
+    exceeds ``closure.undo`` the beams keep ending in space the old map has seen
     through, the closure was an alias, and it is undone: the match climbs again from
     :math:`A^{-1} \oplus x_0`, :math:`d` is restored, and candidates whose correction
-    lies within ``closure_jump`` of the one the search found for it are refused from
+    lies within ``closure.jump`` of the one the search found for it are refused from
     then on (the same alias would win again).
     """
     dtype = memory.travelled.dtype
@@ -443,12 +443,12 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
     def search_prepare(lane, carry):
         watch, matched, score = carry["watch"], carry["matched"], carry["score"]
         travelled = jnp.where(watch.undo, watch.travelled + watch.before, watch.travelled)
-        # No search while the last closure is watched (unless ``closure_nest``): a closure
+        # No search while the last closure is watched (unless ``closure.nest``): a closure
         # taken inside another's watch would restart it, and the first would never be judged.
-        nest_ok = ~watch.watching | (jnp.asarray(params.closure_nest, dtype) > 0)
+        nest_ok = ~watch.watching | (jnp.asarray(params.closure.nest, dtype) > 0)
         triggered = ~watch.undo & ~watch.holding & nest_ok & (
-            score / count < jnp.asarray(params.closure_trigger, dtype)) & (
-            watch.conflict >= jnp.asarray(params.closure_conflict, dtype))
+            score / count < jnp.asarray(params.closure.trigger, dtype)) & (
+            watch.conflict >= jnp.asarray(params.closure.conflict, dtype))
 
         def coarse(radius=None, reach=None):
             return coarse_candidates(read, frame, local_points, weights, laser_offset, matched, params, config,
@@ -458,7 +458,7 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
             far_radius = float(config.closure_radius_far)
             if far_radius <= float(config.closure_radius):
                 return coarse()
-            reach = jnp.minimum(jnp.asarray(params.closure_reach_rate, dtype) * travelled, far_radius)
+            reach = jnp.minimum(jnp.asarray(params.closure.reach_rate, dtype) * travelled, far_radius)
             return jax.lax.cond(reach > float(config.closure_radius), lambda: coarse(far_radius, reach), coarse)
 
         candidates = jax.lax.cond(triggered, wide, lambda: jnp.zeros((lanes, 3), dtype))
@@ -489,18 +489,18 @@ def closure_outcome(carry: dict, count: Array, memory: ClosureState,
     applied, watching = watch.applied, watch.watching
     conflict_sum, conflict_count, before, refused = watch.conflict_sum, watch.conflict_count, watch.before, watch.refused
     correction = se2.compose(pose, se2.inverse(matched))
-    jump = jnp.asarray(params.closure_jump, dtype)
+    jump = jnp.asarray(params.closure.jump, dtype)
     candidate = memory.found
     alias = (refused | undo) & (jnp.hypot(correction[0] - candidate[0], correction[1] - candidate[1]) <= jump)
     wins = (
         (holding | triggered) & ~alias
-        & (found / count >= jnp.asarray(params.closure_min_score, dtype))
-        & (found >= jnp.asarray(params.closure_gain, dtype) * score)
+        & (found / count >= jnp.asarray(params.closure.min_score, dtype))
+        & (found >= jnp.asarray(params.closure.gain, dtype) * score)
         & (jnp.hypot(pose[0] - matched[0], pose[1] - matched[1]) <= jnp.maximum(
-            jump, jnp.asarray(params.closure_drift, dtype) * travelled))
+            jump, jnp.asarray(params.closure.drift, dtype) * travelled))
     )
     scans = jnp.where(wins, watch.held_scans + 1, 0.0)
-    closed = wins & (scans >= jnp.asarray(params.closure_confirm, dtype))
+    closed = wins & (scans >= jnp.asarray(params.closure.confirm, dtype))
     keep = wins & ~closed
     # watch state: 1 watching the last closure, -1 its correction refused (undone), 0 neither
     state = jnp.where(closed, 1.0, jnp.where(undo | refused, -1.0, jnp.where(watching, 1.0, 0.0)))

@@ -27,7 +27,7 @@ perturbed campus has 22-24 of them (its twelve reference jumps and their neighbo
 the perturbed Orebro 5-9, CSAIL 3-6, Intel 1-2, the infinite corridor 2, FHW 0-1, the
 other perturbed logs none (high noise, seeds 0-4).
 
-**The rule.** Where this scan's increment jumped and the tracking's match :math:`(x^*, s)` is refused (:math:`s/n \le` ``track_min_score``), the
+**The rule.** Where this scan's increment jumped and the tracking's match :math:`(x^*, s)` is refused (:math:`s/n \le` ``tracking.min_score``), the
 loop-closure search's coarse stage searches around the guess :math:`\hat x` at a small
 radius (:func:`jaxslam.grid.closure.coarse_candidates`, ``config.recover_radius`` m on
 each axis, ``config.closure_turn`` either way, then GMapping's hill climb from the best
@@ -63,15 +63,15 @@ Alone, over the coarse-to-fine match (:func:`jaxslam.grid.filter.coarse_start`):
 where every match scores 0.003-0.04 of the beams, still lose seeds (seed 5: 9.7 m, its
 heading turned 100 deg over scans 1706-1750 by the particles' climbs); elsewhere it
 changes two runs (Orebro seeds 1 and 9, 0.049 -> 0.072 and 0.064 -> 0.061 m).
-With proposals 2.5 times wider (``track_refused_noise_scale``
-0.5 against ``track_noise_scale`` 0.2) after refused matches
+With proposals 2.5 times wider (``tracking.refused_noise_scale``
+0.5 against ``tracking.noise_scale`` 0.2) after refused matches
 (:func:`jaxslam.grid.tracking.keyframe_noise_scale`): the campus's seeds 0-9 all mapped
 (0.080-0.184 m, mean 0.117, against 0.998 and a worst seed of 2.639 m before, and
 GMapping C++'s 0.452 and 2.420 m; seeds 10-19 0.850 m mean, three of them 1.7-2.1 m),
 and together they are SRUPF-GM's default
-(:func:`jaxslam.grid.experiment.recover_default`; ``benchmarks/grid_robustness.py``).
+(:data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`; ``benchmarks/grid_robustness.py``).
 
-Unlike a loop closure it needs no confirmation and no high score (``closure_min_score``
+Unlike a loop closure it needs no confirmation and no high score (``closure.min_score``
 0.35, which the campus's right matches never reach): its reach is one increment's jump,
 not the drift of a loop.
 """
@@ -126,14 +126,14 @@ def recovery_phases(read, local_points: Array, weights: Array, guess: Array, cou
     found a trusted, clearly better pose, and ``origin``: the pose the constrained
     correction is taken from (``guess``, or the recovered pose)."""
     dtype = guess.dtype
-    bar = jnp.asarray(params.track_min_score, dtype)
+    bar = jnp.asarray(params.tracking.min_score, dtype)
     lanes = refine_count(config)
 
     def open_prepare(lane, carry):
         refused = (carry["score"] / count <= bar) & jumped(increment.astype(dtype))
         candidates = jax.lax.cond(
             refused,
-            lambda: coarse_candidates(read, config.layout, local_points, weights, params.laser_offset, guess,
+            lambda: coarse_candidates(read, config.layout, local_points, weights, params.sensor.laser_offset, guess,
                                       params, config, radius=config.recover_radius),
             lambda: jnp.zeros((lanes, 3), dtype))
         carry = {**carry, "tracked": carry["matched"], "tracked_score": carry["score"], "searching": refused,

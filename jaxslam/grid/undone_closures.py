@@ -1,7 +1,7 @@
 r"""The path a run reports after the loop-closure watch undid closures (host, NumPy).
 
 :func:`jaxslam.grid.closure.closure_phases` watches every closure it takes over the next
-``closure_watch`` m of odometry and undoes one whose scans keep ending in space the old
+``closure.watch`` m of odometry and undoes one whose scans keep ending in space the old
 map has seen through. On the device the undo only moves the pose back from the scan
 that decides it (``Info.track_undo``); the scans tracked in the closure's frame before
 that keep their poses. This module is what the reports do with those rows on the host:
@@ -46,7 +46,7 @@ def put_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndarr
 def judge_at_end(memory, params) -> np.ndarray:
     r"""Host: the closure still watched when the run ends, judged on the scans it had.
 
-    The watch of :func:`jaxslam.grid.closure.closure_phases` runs over ``closure_watch`` m of
+    The watch of :func:`jaxslam.grid.closure.closure_phases` runs over ``closure.watch`` m of
     odometry; a log that ends sooner leaves its last closure unjudged. The path reported
     judges it on the :math:`n` scans watched (``memory.conflict_count``, after the closure's own
     scan), whose shares of beams ending in known free space sum to :math:`\Sigma`
@@ -54,7 +54,7 @@ def judge_at_end(memory, params) -> np.ndarray:
 
     .. math:: n \ge 2, \qquad \Sigma > u_{end}\, n
 
-    (``closure_undo_end``, 1: never). The bar is above ``closure_undo`` because fewer
+    (``closure.undo_end``, 1: never). The bar is above ``closure.undo`` because fewer
     scans are averaged: over the robustness suite's runs (201 closures that
     their watch kept, 50 it undid), the share over the first 3 / 10 / 20 watched scans
     exceeded 0.11 after 24 % / 17 % / 14 % of the kept closures, 0.2 after 4 % / 2 % /
@@ -70,7 +70,7 @@ def judge_at_end(memory, params) -> np.ndarray:
         tracking applied, ``memory.applied``), or zeros.
     """
     count, total = float(memory.conflict_count), float(memory.conflict_sum)
-    if float(memory.watch) > 0 and count >= 2 and total > float(params.closure_undo_end) * count:
+    if float(memory.watch) > 0 and count >= 2 and total > float(params.closure.undo_end) * count:
         return np.concatenate([[count + 1.0], np.asarray(memory.applied, np.float64)])
     return np.zeros(4)
 

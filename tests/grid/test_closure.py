@@ -17,7 +17,8 @@ from jaxslam.grid.closure import (
 )
 from jaxslam.grid.undone_closures import judge_at_end, put_back, reported_undo, take_back
 from jaxslam.grid.map import GridSpec, dense_reader
-from jaxslam.grid.types import ClosureState, default_params
+from jaxslam.grid.algorithms import grid_algorithm
+from jaxslam.grid.types import ClosureState, with_values
 from jaxslam.grid.tracking import track as _track
 from tests.grid.sim_state import state_and_scans
 
@@ -162,20 +163,20 @@ def test_a_guess_metres_off_is_closed_onto_the_map(sim, tracked):
     replaces it. With the trigger at 0 (no search) the same scan is left off: the test
     can fail."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
         motion, score, accepted, closed, *_ = track(state, wrong, scans[3], at_once, config)
-        off = at_once._replace(closure_trigger=np.float64(0.0))
+        off = with_values(at_once, {"closure.trigger": np.float64(0.0)})
         motion0, score0, _, closed0, *_ = track(state, wrong, scans[3], off, config)
         default = track(state, wrong, scans[3], params, dataclasses.replace(config, closure=False))
     error = se2_between(true_step[None], np.asarray(motion)[None])[0]
     error0 = se2_between(true_step[None], np.asarray(motion0)[None])[0]
     assert bool(closed) and bool(accepted), (score, error)
     assert np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5), error
-    assert float(score) >= float(params.closure_min_score)
-    assert not bool(closed0) and float(score0) < float(params.closure_trigger)
+    assert float(score) >= float(params.closure.min_score)
+    assert not bool(closed0) and float(score0) < float(params.closure.trigger)
     assert np.hypot(*error0[:2]) > 0.5, error0
     # The default config (no search compiled in) tracks like the trigger at 0.
     np.testing.assert_allclose(np.asarray(default[0]), np.asarray(motion0), atol=1e-12)
@@ -187,7 +188,7 @@ def test_the_default_reach_closes_a_guess_beyond_four_metres(sim, tracked):
     closures jump up to 4.7 m): the default reach (6 m) closes it onto the map; a
     4 m reach cannot (the test can fail)."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     assert config.closure_radius == 6.0
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
@@ -208,15 +209,15 @@ def test_the_reach_grows_with_the_distance_since_the_last_closure(sim, tracked):
     the far search closes it onto the map. A rate of 0 keeps the fixed reach (the test
     can fail both ways)."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
-    assert config.closure_radius_far == 10.0 and float(params.closure_reach_rate) == pytest.approx(0.02)
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
+    assert config.closure_radius_far == 10.0 and float(params.closure.reach_rate) == pytest.approx(0.02)
     far_state = state._replace(closure=_memory(travelled=450.0))
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[7.2, 0.3, math.radians(2.0)]]))[0]
         short = track(state, wrong, scans[3], at_once, config)
         long = track(far_state, wrong, scans[3], at_once, config)
-        fixed = track(far_state, wrong, scans[3], at_once._replace(closure_reach_rate=np.float64(0.0)), config)
+        fixed = track(far_state, wrong, scans[3], with_values(at_once, {"closure.reach_rate": np.float64(0.0)}), config)
     assert bool(long[3]) and _on_true_pose(true_step, long), long[:4]
     for off in (short, fixed):
         error = se2_between(true_step[None], np.asarray(off[0])[None])[0]
@@ -231,8 +232,8 @@ def test_a_good_match_is_left_alone(sim, tracked):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = true_step + np.array([0.03, -0.02, 0.04])
         got = track(state, wrong, scans[3], params, config)
-        without = track(state, wrong, scans[3], params._replace(closure_trigger=np.float64(0.0)), config)
-    assert float(got[1]) > float(params.closure_trigger) and not bool(got[3])
+        without = track(state, wrong, scans[3], with_values(params, {"closure.trigger": np.float64(0.0)}), config)
+    assert float(got[1]) > float(params.closure.trigger) and not bool(got[3])
     chex.assert_trees_all_equal(got, without)
 
 
@@ -243,9 +244,9 @@ def test_a_closure_that_does_not_beat_the_gain_is_refused(sim, tracked):
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        strict = params._replace(closure_gain=np.float64(1e6), closure_confirm=np.float64(1.0))
+        strict = with_values(params, {"closure.gain": np.float64(1e6), "closure.confirm": np.float64(1.0)})
         motion, _, _, closed, *_ = track(state, wrong, scans[3], strict, config)
-        plain = track(state, wrong, scans[3], params._replace(closure_trigger=np.float64(0.0)), config)
+        plain = track(state, wrong, scans[3], with_values(params, {"closure.trigger": np.float64(0.0)}), config)
     assert not bool(closed)
     np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
 
@@ -256,12 +257,12 @@ def test_a_candidate_is_held_until_confirmed(sim, tracked):
     correction onto the true pose and closes. A held candidate that the next scan does not confirm (a wrong
     correction of 2 m) is dropped and the local match kept."""
     track, state, scans, params, config = tracked
-    confirm = params._replace(closure_confirm=np.float64(2.0))
+    confirm = with_values(params, {"closure.confirm": np.float64(2.0)})
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
         motion, _, _, closed, _, held, _ = track(state, wrong, scans[3], confirm, config)
-        plain = track(state, wrong, scans[3], confirm._replace(closure_trigger=np.float64(0.0)), config)
+        plain = track(state, wrong, scans[3], with_values(confirm, {"closure.trigger": np.float64(0.0)}), config)
         assert not bool(closed) and float(held.held_scans) == 1.0
         np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
         # The next scan (here the same one again) follows and closes.
@@ -285,14 +286,14 @@ def test_a_jump_beyond_the_drift_since_the_last_closure_is_refused(sim, tracked)
     that the scan's own odometry makes 1.6 m or more it closes again; the distance
     restarts from 0 at the closure and adds up over refused scans."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
         fresh = state._replace(closure=_memory())
         refused = track(fresh, wrong, scans[3], at_once, config)
         step = float(np.hypot(*wrong[:2]))
-        loose = at_once._replace(closure_drift=np.float64(1.7 / step))
+        loose = with_values(at_once, {"closure.drift": np.float64(1.7 / step)})
         closed = track(fresh, wrong, scans[3], loose, config)
     assert not bool(refused[3]) and float(refused[5].travelled) == pytest.approx(step)
     assert bool(closed[3]) and float(closed[5].travelled) == 0.0
@@ -336,8 +337,7 @@ def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, 
     correction is refused from then on. With a low mean conflict, or before the watch
     distance, nothing changes but the watch state."""
     track, state, scans, params, config = tracked
-    undo = params._replace(closure_undo=np.float64(0.11), closure_watch=np.float64(5.0),
-                           closure_trigger=np.float64(0.0))
+    undo = with_values(params, {"closure.undo": np.float64(0.11), "closure.watch": np.float64(5.0), "closure.trigger": np.float64(0.0)})
     with jax.enable_x64(True):
         true_step, wrong, applied = _closed_off(sim, state)
         plain = track(state._replace(closure=_memory()), wrong, scans[3], undo, config)
@@ -367,7 +367,7 @@ def test_a_closure_with_the_undone_correction_is_refused(sim, tracked):
     correction; after that correction was undone (watch state -1) the same candidate is
     refused, while a refused correction elsewhere does not stop it."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
@@ -391,8 +391,7 @@ def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(s
     watched (a robot standing still repeats one scan), before a fifth of the watch
     distance, or with the parameter at 1 (off), nothing changes but the watch state."""
     track, state, scans, params, config = tracked
-    fast = params._replace(closure_undo=np.float64(0.11), closure_watch=np.float64(20.0),
-                           closure_undo_fast=np.float64(0.4), closure_trigger=np.float64(0.0))
+    fast = with_values(params, {"closure.undo": np.float64(0.11), "closure.watch": np.float64(20.0), "closure.undo_fast": np.float64(0.4), "closure.trigger": np.float64(0.0)})
     with jax.enable_x64(True):
         true_step, wrong, applied = _closed_off(sim, state)
         plain = track(state._replace(closure=_memory()), wrong, scans[3], fast, config)
@@ -402,7 +401,7 @@ def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(s
         one_scan = track(_watched(state, applied, 4.0, 0.9, 0.0), wrong, scans[3], fast, config)
         too_soon = track(_watched(state, applied, 0.0, 0.9, 1.0), wrong, scans[3], fast, config)
         off = track(_watched(state, applied, 4.0, 0.9, 1.0), wrong, scans[3],
-                    fast._replace(closure_undo_fast=np.float64(1.0)), config)
+                    with_values(fast, {"closure.undo_fast": np.float64(1.0)}), config)
     step = float(np.hypot(*wrong[:2]))
     assert 1.0 < step < 4.0
     assert bool(early[3]) and _on_true_pose(true_step, early), early[0]
@@ -421,17 +420,16 @@ def test_no_closure_is_taken_while_another_is_watched(sim, tracked):
     ``closure_nest`` 1 the far-off scan closes (a closure inside the watch, which would
     restart it); once the watch has ended (10.5 m, the closure kept) it closes with 0 too."""
     track, state, scans, params, config = tracked
-    assert float(params.closure_nest) == 0.0
-    at_once = params._replace(closure_confirm=np.float64(1.0), closure_drift=np.float64(10.0),
-                              closure_watch=np.float64(10.0))
+    assert float(params.closure.nest) == 0.0
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0), "closure.drift": np.float64(10.0), "closure.watch": np.float64(10.0)})
     other = np.array([0.3, 0.0, 0.0])
     with jax.enable_x64(True):
         true_step, wrong, _ = _closed_off(sim, state)
         plain = track(state._replace(closure=_memory()), wrong, scans[3],
-                      at_once._replace(closure_trigger=np.float64(0.0)), config)
+                      with_values(at_once, {"closure.trigger": np.float64(0.0)}), config)
         blocked = track(_watched(state, other, 2.0, 0.0, 2.0), wrong, scans[3], at_once, config)
         nested = track(_watched(state, other, 2.0, 0.0, 2.0), wrong, scans[3],
-                       at_once._replace(closure_nest=np.float64(1.0)), config)
+                       with_values(at_once, {"closure.nest": np.float64(1.0)}), config)
         after = track(_watched(state, other, 10.5, 0.0, 10.0), wrong, scans[3], at_once, config)
     assert not bool(blocked[3]) and float(blocked[5].watch) == 1.0
     np.testing.assert_array_equal(np.asarray(blocked[0]), np.asarray(plain[0]))
@@ -476,8 +474,8 @@ def test_a_closure_still_watched_at_the_end_is_judged_on_the_scans_it_had():
     the end's row ``[7, A]`` takes the closure back on scans 33..39 (the closure's own
     scan and the 6 watched); with a low mean, fewer than two scans, no watch open (0),
     an undone closure (-1) or the parameter at 1, the row is zeros and the path stays."""
-    params = default_params(np.linspace(-1.5, 1.5, 10))
-    assert float(params.closure_undo_end) == pytest.approx(0.2)
+    params = grid_algorithm("srupf-gm").make_params(np.linspace(-1.5, 1.5, 10))
+    assert float(params.closure.undo_end) == pytest.approx(0.2)
     rng = np.random.default_rng(5)
     steps = np.column_stack([rng.uniform(0.05, 0.2, 40), rng.normal(0, 0.02, 40), rng.normal(0, 0.05, 40)])
     true = np.zeros((40, 3))
@@ -500,6 +498,6 @@ def test_a_closure_still_watched_at_the_end_is_judged_on_the_scans_it_had():
     np.testing.assert_allclose(put_back(got, np.arange(40), undo), reported, atol=1e-12)
     for kept in (memory(1.0, 6 * 0.15, 6.0), memory(1.0, 0.9, 1.0), memory(0.0, 1.8, 6.0), memory(-1.0, 1.8, 6.0)):
         np.testing.assert_array_equal(judge_at_end(kept, params), np.zeros(4))
-    off = params._replace(closure_undo_end=np.float64(1.0))
+    off = with_values(params, {"closure.undo_end": np.float64(1.0)})
     np.testing.assert_array_equal(judge_at_end(memory(1.0, 6 * 0.9, 6.0), off), np.zeros(4))
     np.testing.assert_array_equal(take_back(reported, np.arange(40), reported_undo(np.zeros((39, 4)), None)), reported)
