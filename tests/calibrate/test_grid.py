@@ -147,7 +147,7 @@ def test_calibrate_srupf_then_run_with_params(tmp_path):
                  "--samples", "2"]) == 0
     payload = json.loads((out / "calibration.json").read_text())
     assert set(payload["params_after"]) == set(G.GRID_NOISE_NAMES)
-    assert len(payload["params_after"]["match_noise"]) == 3 and payload["validation"]["steps"] == [0, 1, 2]
+    assert len(payload["params_after"]["srupf.match_noise"]) == 3 and payload["validation"]["steps"] == [0, 1, 2]
     assert (out / "calibration.png").exists()
     run_out = tmp_path / "run"
     assert main(["run", "--algorithm", "srupf-gm", "--out", str(run_out), "--particles", "3", "--max-steps", "4",
