@@ -314,7 +314,7 @@ def part_grid(args) -> dict:
     from jaxslam.datasets.registry import load_dataset_log
     from jaxslam.datasets.registry import lookup
     from jaxslam.grid.experiment import run_grid_slam
-    from jaxslam.grid.types import default_params
+    from jaxslam.grid.algorithms import grid_algorithm
     from jaxslam.metrics.relations import load_relations, relations_metric
 
     log = load_dataset_log(args.grid_dataset)
@@ -338,7 +338,7 @@ def part_grid(args) -> dict:
         if label == "calibrated" and res.after == res.before:
             out[label] = {**out["default"], "same_as_default": True}
             continue
-        prm = default_params(log.angles, log.laser_offset, **values)
+        prm = grid_algorithm("srupf-gm").make_params(log.angles, log.laser_offset, values=values)
         th = jnp.asarray(G.log_noise_of(prm, res.names), jnp.float32)
         inc = np.asarray(increments(keys, th, prm, inputs))[:, res.window - 1:]
         rows = []

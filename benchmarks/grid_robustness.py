@@ -47,7 +47,7 @@ Logs:
 
 Every filter uses the same defaults on every log: ``run_grid_slam``'s default
 parameters and configuration (every scan tracked, the filter's keyframe rule on the
-tracked motion, :func:`jaxslam.grid.types.default_keyframes`: 0.5 m / 0.5 rad for
+tracked motion, ``keyframes`` of :data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`: 0.5 m / 0.5 rad for
 ``srupf-gm``, GMapping's 1 m / 0.5 rad for ``gmapping``; runs before the stress test of
 ``grid_stress.py`` used 1 m for both, :mod:`jaxslam.grid.tracking`); GMapping C++ its own
 defaults. GMapping C++ gets the
@@ -365,7 +365,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=1800.0)
     parser.add_argument("--no-maps", action="store_true")
     parser.add_argument("--variant", action="append", default=[], metavar="NAME=JSON",
-                        help='jaxslam settings to compare in one run, e.g. wide={"params": {"score_sigma": 0.2}} '
+                        help='jaxslam settings to compare in one run, e.g. wide={"params": {"matcher.score_sigma": 0.2}} '
                              '(keys "params" and "config" of run_grid_slam, and "laser_odometry": LaserOdometryConfig '
                              'fields to run on jaxslam.grid.laser_odometry.laser_corrected_log; repeatable; '
                              'default: the defaults)')

@@ -16,7 +16,11 @@ The public API:
   (Victoria Park or the landmark simulator) with :class:`~jaxslam.feature.experiment.LandmarkSlamResult`;
 * the grid filters' types (:class:`~jaxslam.grid.types.GridSlamConfig`, :class:`~jaxslam.grid.types.GridSlamParams`,
   :class:`~jaxslam.grid.types.GridSlamState`, :class:`~jaxslam.grid.types.GridSlamInfo`, :class:`~jaxslam.grid.types.Odometry`, :class:`~jaxslam.grid.types.Scan`,
-  :func:`~jaxslam.grid.types.default_params`, :func:`~jaxslam.grid.experiment.make_config`) and the landmark filters'
+  their parts :class:`~jaxslam.grid.types.SensorParams`, :class:`~jaxslam.grid.types.MapParams`,
+  :class:`~jaxslam.grid.types.MatcherParams`, :class:`~jaxslam.grid.types.KeyframeParams`, :class:`~jaxslam.grid.types.TrackingParams`,
+  :class:`~jaxslam.grid.types.ClosureParams`, :class:`~jaxslam.grid.types.WeightParams`, :class:`~jaxslam.grid.types.GMappingNoise`,
+  :class:`~jaxslam.grid.types.SrupfNoise`, :class:`~jaxslam.core.sigma.UTParams`, :func:`~jaxslam.grid.types.with_values`, the
+  registry :data:`~jaxslam.grid.algorithms.GRID_ALGORITHMS` with :func:`~jaxslam.grid.algorithms.grid_algorithm`) and the landmark filters'
   (:class:`LandmarkConfig <jaxslam.feature.params.Config>`, :class:`LandmarkParams <jaxslam.feature.params.Params>`, :class:`LandmarkState <jaxslam.feature.filter.State>`,
   :class:`LandmarkInfo <jaxslam.feature.filter.Info>`, :class:`~jaxslam.feature.particle.Observation`);
 * maps: :func:`~jaxslam.grid.export.save_map` (PGM + YAML and PNG), :func:`~jaxslam.grid.mapfile.load_map` (a run's lossless
@@ -49,7 +53,6 @@ _HOMES = {
     "rb_upf": "jaxslam.filters",
     "run_grid_slam": "jaxslam.grid.experiment",
     "GridSlamResult": "jaxslam.grid.experiment",
-    "make_config": "jaxslam.grid.experiment",
     "run_landmark_slam": "jaxslam.feature.experiment",
     "LandmarkSlamResult": "jaxslam.feature.experiment",
     "GridSlamConfig": "jaxslam.grid.types",
@@ -58,7 +61,21 @@ _HOMES = {
     "GridSlamInfo": "jaxslam.grid.types",
     "Odometry": "jaxslam.grid.types",
     "Scan": "jaxslam.grid.types",
-    "default_params": "jaxslam.grid.types",
+    "SensorParams": "jaxslam.grid.types",
+    "MapParams": "jaxslam.grid.types",
+    "MatcherParams": "jaxslam.grid.types",
+    "KeyframeParams": "jaxslam.grid.types",
+    "TrackingParams": "jaxslam.grid.types",
+    "ClosureParams": "jaxslam.grid.types",
+    "ClosureState": "jaxslam.grid.types",
+    "WeightParams": "jaxslam.grid.types",
+    "GMappingNoise": "jaxslam.grid.types",
+    "SrupfNoise": "jaxslam.grid.types",
+    "UTParams": "jaxslam.core.sigma",
+    "with_values": "jaxslam.grid.types",
+    "GRID_ALGORITHMS": "jaxslam.grid.algorithms",
+    "GridAlgorithm": "jaxslam.grid.algorithms",
+    "grid_algorithm": "jaxslam.grid.algorithms",
     "save_map": "jaxslam.grid.export",
     "Observation": "jaxslam.feature.filter",
     "load_map": "jaxslam.grid.mapfile",

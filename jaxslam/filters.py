@@ -48,7 +48,8 @@ def _require(config, field: str, value: str, factory: str, hint: str) -> None:
 
 def srupf_gm(config: GridSlamConfig, params: GridSlamParams) -> ParticleFilter:
     """SRUPF-GM with pose correction (:mod:`jaxslam.grid.srupf`, ``config.correction
-    = "pc"``; :func:`jaxslam.grid.experiment.make_config` ``("srupf-gm", ...)``)."""
+    = "pc"``; ``GRID_ALGORITHMS["srupf-gm"].make_config(...)``,
+    :mod:`jaxslam.grid.algorithms`)."""
     _require(config, "correction", "pc", "srupf_gm", "use srupf_gm_npc for 'npc'")
     return _grid_filter(srupf_module, config, params)
 
@@ -56,14 +57,14 @@ def srupf_gm(config: GridSlamConfig, params: GridSlamParams) -> ParticleFilter:
 def srupf_gm_npc(config: GridSlamConfig, params: GridSlamParams) -> ParticleFilter:
     """SRUPF-GM without pose correction: the best propagated sigma point is the
     corrected pose (eq. 10; ``config.correction = "npc"``,
-    :func:`jaxslam.grid.experiment.make_config` ``("srupf-gm-npc", ...)``)."""
+    ``GRID_ALGORITHMS["srupf-gm-npc"].make_config(...)``)."""
     _require(config, "correction", "npc", "srupf_gm_npc", "use srupf_gm for 'pc'")
     return _grid_filter(srupf_module, config, params)
 
 
 def gmapping(config: GridSlamConfig, params: GridSlamParams) -> ParticleFilter:
     """The GMapping-style filter (:mod:`jaxslam.grid.gmapping`;
-    :func:`jaxslam.grid.experiment.make_config` ``("gmapping", ...)``)."""
+    ``GRID_ALGORITHMS["gmapping"].make_config(...)``)."""
     return _grid_filter(gmapping_module, config, params)
 
 

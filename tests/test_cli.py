@@ -277,11 +277,13 @@ def test_float64_run_switches_x64_on_for_that_run_only(tmp_path):
 
 @pytest.mark.parametrize("algorithm,linear", [("srupf-gm", 0.5), ("srupf-gm-npc", 0.5), ("gmapping", 1.0)])
 def test_listed_params_carry_each_filters_keyframe_rule(algorithm, linear):
-    """`--list-params` and default_params give a filter the keyframe rule it runs with."""
-    from jaxslam.grid.types import default_keyframes, default_params
+    """`--list-params` and the registry give a filter the keyframe rule it runs with."""
     from jaxslam.app.runs import param_fields
+    from jaxslam.grid.algorithms import grid_algorithm
+    from jaxslam.grid.experiment import KEYFRAME_PATHS, keyframe_rule
 
-    assert default_keyframes(algorithm)[0] == linear
+    rule = keyframe_rule(algorithm=algorithm)
+    assert rule[0] == linear
     fields = param_fields(algorithm)
-    assert (fields["linear_update"], fields["angular_update"], fields["temporal_update"]) == default_keyframes(algorithm)
-    assert float(default_params(np.zeros(3), algorithm=algorithm).linear_update) == linear
+    assert tuple(fields[path] for path in KEYFRAME_PATHS) == rule
+    assert float(grid_algorithm(algorithm).make_params(np.zeros(3)).keyframes.linear_update) == linear

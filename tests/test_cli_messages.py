@@ -60,15 +60,16 @@ def test_no_help_repeats_its_default_nor_shows_an_empty_one(command):
 def test_help_states_the_defaults_the_code_uses():
     from jaxslam.app.runs import DEFAULT_PARTICLES
     from jaxslam.grid.driver import DEFAULT_CHUNK
-    from jaxslam.grid.types import DEFAULT_KEYFRAMES, GMAPPING_KEYFRAMES
+    from jaxslam.grid.experiment import keyframe_rule
 
+    srupf, gmapping = keyframe_rule(algorithm="srupf-gm"), keyframe_rule(algorithm="gmapping")
     particles = option_help("jaxslam run", "--particles")
     assert f"{DEFAULT_PARTICLES['landmark']} for landmark data, {DEFAULT_PARTICLES['laser']} for laser data" in particles
     linear = option_help("jaxslam run", "--linear-update")
-    assert f"default {DEFAULT_KEYFRAMES[0]:g} for srupf-gm, GMapping's {GMAPPING_KEYFRAMES[0]:g}" in linear
-    assert f"default {DEFAULT_KEYFRAMES[1]:g})" in option_help("jaxslam run", "--angular-update")
-    assert DEFAULT_KEYFRAMES[1] == GMAPPING_KEYFRAMES[1]
-    assert f"default {DEFAULT_KEYFRAMES[2]:g}: off" in option_help("jaxslam run", "--temporal-update")
+    assert f"default {srupf[0]:g} for srupf-gm, GMapping's {gmapping[0]:g}" in linear
+    assert f"default {srupf[1]:g})" in option_help("jaxslam run", "--angular-update")
+    assert srupf[1] == gmapping[1]
+    assert f"default {srupf[2]:g}: off" in option_help("jaxslam run", "--temporal-update")
     assert f"{DEFAULT_CHUNK} scans for laser data" in option_help("jaxslam run", "--chunk")
     assert "(default: 20)" in option_help("jaxslam calibrate", "--particles")
     from jaxslam.app.runs import LOCALIZE_PARTICLES, LOCALIZE_SCANS
@@ -79,15 +80,16 @@ def test_help_states_the_defaults_the_code_uses():
 
 def test_loop_closure_help_states_the_searchs_configured_reach():
     from jaxslam.grid import closure
-    from jaxslam.grid.types import GridSlamConfig, default_params
+    from jaxslam.grid.algorithms import grid_algorithm
+    from jaxslam.grid.types import GridSlamConfig
 
     config = {f.name: f.default for f in dataclasses.fields(GridSlamConfig)}
-    params = default_params(np.zeros(1, np.float32), algorithm="srupf-gm")
+    params = grid_algorithm("srupf-gm").make_params(np.zeros(1, np.float32))
     turn_deg = round(config["closure_turn"] / closure.TURN_STEP) * math.degrees(closure.TURN_STEP)
     text = option_help("jaxslam run", "--loop-closure")
     assert f"up to {config['closure_radius']:g} m (each axis) and {turn_deg:.0f} deg" in text
-    assert f"up to {config['closure_radius_far']:g} m ({100 * float(params.closure_reach_rate):.0f} cm per m" in text
-    assert f"over the next {float(params.closure_watch):g} m is undone" in text
+    assert f"up to {config['closure_radius_far']:g} m ({100 * float(params.closure.reach_rate):.0f} cm per m" in text
+    assert f"over the next {float(params.closure.watch):g} m is undone" in text
 
 
 @pytest.mark.long

@@ -79,9 +79,9 @@ def test_the_usable_range_is_traced_two_range_limits_share_one_program():
 
     log = simulate(width=12.0, height=8.0, rooms_x=2, laps=0.3, num_beams=91, seed=2)
     options = dict(particles=3, progress=False, max_keyframes=12, config={"max_points": 16384, "window_range": 20.0})
-    near = run_grid_slam(log, params={"usable_range": 4.0}, **options)
+    near = run_grid_slam(log, params={"sensor.usable_range": 4.0}, **options)
     with CompileCounter() as counter:
-        far = run_grid_slam(log, params={"usable_range": 6.0}, **options)
+        far = run_grid_slam(log, params={"sensor.usable_range": 6.0}, **options)
     assert counter.requests == 0, counter.as_dict()
     assert near.config == far.config
     assert not np.array_equal(near.map_log_odds, far.map_log_odds)

@@ -135,8 +135,9 @@ def test_grid_cli_path_compiles_once_per_config(sim_log, algorithm):
     first = run_grid_slam(sim_log, algorithm, seed=0, **kw)
     runner = grid_driver.chunk_runner(GRID_STEPS[algorithm], first.config)
     compiled = runner._cache_size()
-    second = run_grid_slam(sim_log, algorithm, seed=1, params={"srr": 0.05, "q_linear": 0.03, "l_occ": 5.0,
-                                                               "resample_threshold": 0.3, "usable_range": 12.0}, **kw)
+    second = run_grid_slam(sim_log, algorithm, seed=1, params={
+        "gmapping.srr": 0.05, "srupf.q_linear": 0.03, "map.l_occ": 5.0, "weights.resample_threshold": 0.3,
+        "sensor.usable_range": 12.0}, **kw)
     assert second.config == first.config
     assert grid_driver.chunk_runner(GRID_STEPS[algorithm], second.config) is runner
     # the shared driver's runner, with the grid programs' XLA options (jaxslam.runtime.compiler)
@@ -153,9 +154,10 @@ def test_grid_cli_path_compiles_once_per_config(sim_log, algorithm):
 import chex  # noqa: E402
 
 import jaxslam  # noqa: E402
-from jaxslam.grid.experiment import make_config, map_layout  # noqa: E402
+from jaxslam.grid.algorithms import grid_algorithm  # noqa: E402
+from jaxslam.grid.experiment import map_layout  # noqa: E402
 from jaxslam.grid.rays import required_points  # noqa: E402
-from jaxslam.grid.types import Odometry, Scan, default_params  # noqa: E402
+from jaxslam.grid.types import Odometry, Scan  # noqa: E402
 from jaxslam.metrics.trajectory_io import se2_between  # noqa: E402
 
 
@@ -182,11 +184,11 @@ def grid_inputs(log, algorithm, particles=3, scans=60):
     as :func:`jaxslam.grid.experiment.run_grid_slam` lays them out."""
     odom = np.asarray(log.odom_poses[:scans])
     ranges = np.where(log.valid[:scans], log.ranges[:scans], 0.0)
-    params = default_params(log.angles, log.laser_offset, num_particles=particles, dtype=jnp.float32,
-                            algorithm=algorithm, linear_update=0.5, angular_update=0.3)
+    params = grid_algorithm(algorithm).make_params(log.angles, log.laser_offset, dtype=jnp.float32, values={"keyframes.linear_update": 0.5,
+                                                                                             "keyframes.angular_update": 0.3})
     layout = map_layout(log, np.arange(scans), 0.05, 10.0, particles, 20.0)
     points = int(np.ceil(required_points(np.minimum(ranges, 20.0), log.valid[:scans], 0.05) / 1024) * 1024)
-    config = make_config(algorithm, particles, layout, log.num_beams, points, match_iterations=3)
+    config = grid_algorithm(algorithm).make_config(particles, layout, log.num_beams, points, match_iterations=3)
     real = np.float32
     first = Scan(ranges[0].astype(real), np.asarray(log.valid[0]), np.asarray(0.0, real))
     controls = Odometry(se2_between(odom[:-1], odom[1:]).astype(real), np.ones(scans - 1, real),

@@ -66,14 +66,14 @@ BEFORE = 300
 AFTER = 60
 """... and its later scan within this many scans after it."""
 def _default_watch() -> float:
-    from jaxslam.grid.types import default_params
+    from jaxslam.grid.types import ClosureParams
 
-    return float(default_params(np.zeros(1), np.zeros(3)).closure_watch)
+    return float(ClosureParams().watch)
 
 
 WATCH_M = _default_watch()
-"""Path length over which ``watch_conflict`` averages: the filter's own ``closure_watch``
-default, read from :func:`jaxslam.grid.types.default_params` so the two cannot drift apart."""
+"""Path length over which ``watch_conflict`` averages: the filter's own ``closure.watch``
+default, read from :class:`jaxslam.grid.types.ClosureParams` so the two cannot drift apart."""
 RIGHT_M = 0.5
 """A right closure's judging relations have a median translational error under this (m)."""
 TAKEN_BACK_SCANS = 10

@@ -244,7 +244,7 @@ def write_grid_outputs(out: Path, result, arrays: dict, comment: str) -> None:
     save_map(out, result.map_log_odds, result.resolution, result.origin, name="map", trajectory=result.trajectory)
     layout = getattr(getattr(result, "config", None), "layout", None)
     save_map_npz(out / "map.npz", result.map_log_odds, result.resolution, result.origin,
-                 log_odds_unit=(result.params or {}).get("log_odds_unit"), tile=getattr(layout, "tile", None),
+                 log_odds_unit=(result.params or {}).get("map.log_odds_unit"), tile=getattr(layout, "tile", None),
                  pose=result.trajectory[-1])
     write_npz(out / "arrays.npz", **arrays)
 

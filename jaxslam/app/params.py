@@ -56,10 +56,12 @@ def defaults(algorithm: str) -> dict[str, str]:
 
         values = Params()
     else:
-        from jaxslam.grid.types import default_params
+        from jaxslam.grid.algorithms import grid_algorithm
+        from jaxslam.grid.types import get_path
 
-        values = default_params(np.zeros(1), algorithm=algorithm, dtype=np.float64)
-    return {name: typed(float(getattr(values, spec.field or name))) for name, spec in specs(algorithm).items()}
+        grid = grid_algorithm(algorithm).make_params(np.zeros(1), dtype=np.float64)
+        return {name: typed(float(get_path(grid, name))) for name in specs(algorithm)}
+    return {name: typed(float(getattr(values, name))) for name in specs(algorithm)}
 
 
 def typed(value: float) -> str:
@@ -95,12 +97,12 @@ def parameter_table(algorithm: str) -> str:
 
 
 def check_value(algorithm: str, name: str, value, origin: str = "--set") -> str:
-    """The ``Params`` field that ``name`` sets, after checking ``value``; a ``ValueError``
-    naming ``origin``, the parameter and the value otherwise. ``value``: a number, or a
-    list of numbers (from a calibration file) for a vector parameter."""
+    """``name`` (a ``Params`` field of a landmark filter, the path of a grid filter's
+    leaf) after checking ``value``; a ``ValueError`` naming ``origin``, the parameter and
+    the value otherwise. ``value``: a number, or a list of numbers (from a calibration
+    file) for a vector parameter."""
     table = specs(algorithm)
-    # the field's own name (``str_``, as in a calibration file or an older run.json) too
-    spec = table.get(name) or next((s for s in table.values() if s.field == name), None)
+    spec = table.get(name)
     if isinstance(value, list):
         return _check_vector(algorithm, name, value, origin)
     if spec is None:
@@ -111,7 +113,7 @@ def check_value(algorithm: str, name: str, value, origin: str = "--set") -> str:
     problem = spec.problem(float(value))
     if problem is not None:
         raise ValueError(f"{origin} {name}={value:g}: {name} ({spec.unit}, {spec.meaning}) {problem}")
-    return spec.field or name
+    return name
 
 
 def _unused_hint(algorithm: str, name: str) -> str:
@@ -123,18 +125,12 @@ def _unused_hint(algorithm: str, name: str) -> str:
         return f" (it is a parameter of {', '.join(spec.algorithms)})"
     if spec is not None:
         return " (it is a parameter of the " + ("grid" if name in GRID else "landmark") + " filters)"
-    for other, other_spec in {**GRID, **LANDMARK}.items():
-        if other_spec.field == name:
-            return f" (its name on the command line is {other!r})"
     return ""
 
 
-VECTORS = {"ellipse_floor": 3, "match_noise": 3, "initial_std": 3}
-"""Vector parameters of the grid filters (standard deviations, finite and >= 0) that a
-calibration file (``--params``) may set, with their lengths."""
-
-
 def _check_vector(algorithm: str, name: str, value: list, origin: str) -> str:
+    from jaxslam.grid.types import VECTORS
+
     size = VECTORS.get(name) if ALGORITHMS[algorithm] == "laser" else None
     if size is None:
         raise ValueError(f"{origin} {name}: {algorithm} has no vector parameter {name!r}")

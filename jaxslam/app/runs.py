@@ -37,18 +37,21 @@ DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
 
 def param_fields(algorithm: str) -> dict[str, Any]:
-    """Each ``Params`` field of the algorithm with its default (scalars as floats)."""
+    """Each ``Params`` field of the algorithm (for a grid filter, each leaf by its path)
+    with its default (scalars as floats)."""
     if kind_of(algorithm) == "landmark":
         from jaxslam.feature.params import Params
 
         defaults = Params()
+        leaves = {name: getattr(defaults, name) for name in defaults._fields}
     else:
-        from jaxslam.grid.types import default_params
+        from jaxslam.grid.algorithms import grid_algorithm
+        from jaxslam.grid.types import get_path, param_paths
 
-        defaults = default_params(np.zeros(1, np.float32), algorithm=algorithm)
+        defaults = grid_algorithm(algorithm).make_params(np.zeros(1, np.float32))
+        leaves = {path: get_path(defaults, path) for path in param_paths()}
     values = {}
-    for name in defaults._fields:
-        value = getattr(defaults, name)
+    for name, value in leaves.items():
         if np.ndim(value) == 0 and not isinstance(value, tuple):
             try:
                 value = float(value)
@@ -59,7 +62,7 @@ def param_fields(algorithm: str) -> dict[str, Any]:
 
 
 def check_overrides(algorithm: str, overrides: dict[str, float], origin: str = "--set") -> dict[str, Any]:
-    """``overrides`` by ``Params`` field (``str`` as ``str_``), each value checked against
+    """``overrides`` by ``Params`` field (a grid filter's by path), each value checked against
     its specification (:mod:`jaxslam.app.params`); a ``RunError`` naming ``origin``,
     the parameter and the value otherwise."""
     from jaxslam.app.params import check_value
@@ -141,7 +144,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
 
     name = info.name if info is not None else str(path)
     loading = time.perf_counter()
-    temporal = (keyframes or {}).get("temporal", overrides.get("temporal_update", -1.0))
+    temporal = (keyframes or {}).get("temporal", overrides.get("keyframes.temporal_update", -1.0))
     log, log_cache, log_checks = load_checked_log(info, path, seed, bag, max_range, mixed_geometry,
                                                   max_odometry_step, temporal is not None and float(temporal) > 0)
     load_s = time.perf_counter() - loading
@@ -180,7 +183,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         "resamplings": result.resamplings, "dtype": np.dtype(dtype).name, "loop_closure": bool(result.config.closure),
         "coarse_iterations": int(result.config.coarse_iterations),
         "recover_radius": float(result.config.recover_radius),
-        "track_refused_noise_scale": result.params.get("track_refused_noise_scale"),
+        "track_refused_noise_scale": result.params.get("tracking.refused_noise_scale"),
         "finite": bool(np.all(np.isfinite(result.trajectory))),
         "log_stats": getattr(log, "stats", {}), "load_s": load_s, "log_cache": log_cache,
         "max_range": float(getattr(log, "max_range", np.nan)), "no_return": getattr(log, "no_return", {}),
@@ -354,7 +357,7 @@ def run(
     for this run only (``jax.enable_x64``), the default float32 path never touches it.
     ``loop_closure`` (laser data) turns the tracking's loop-closure search
     (:mod:`jaxslam.grid.closure`) on or off; None keeps the algorithm's default (on for
-    SRUPF-GM, off for the GMapping-style filter, :func:`jaxslam.grid.experiment.closure_default`).
+    SRUPF-GM, off for the GMapping-style filter: :data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`).
     ``run.json`` and a checkpoint's fingerprint record what ran, default or not.
     ``mixed_geometry`` (CARMEN logs): ``"pad"`` pads the scans of a log whose beam
     geometry changes to a common length (:func:`jaxslam.datasets.carmen.load_carmen`),
@@ -390,7 +393,7 @@ def run(
         raise RunError(f"unknown keyframe threshold(s) {sorted(unknown)}; use linear, angular, temporal")
     if kind == "laser":
         for key, value in keyframes.items():
-            check_overrides(algorithm, {f"{key}_update": value}, origin=f"--{key}-update:")
+            check_overrides(algorithm, {f"keyframes.{key}_update": value}, origin=f"--{key}-update:")
     if keyframes and kind != "laser":
         raise RunError("keyframe thresholds (--linear-update/--angular-update/--temporal-update) apply to laser "
                        "data only; the landmark filters process every scan")
@@ -439,9 +442,10 @@ def run(
         # What runs, recorded even when it is the algorithm's default: a checkpoint's
         # fingerprint then names it, and a default that changes between versions
         # cannot silently switch the search on or off in a resumed run.
-        from jaxslam.grid.experiment import closure_default
+        from jaxslam.grid.algorithms import grid_algorithm
 
-        loop_closure = closure_default(algorithm) if loop_closure is None else bool(loop_closure)
+        entry = grid_algorithm(algorithm)
+        loop_closure = entry.config_default("closure") if loop_closure is None else bool(loop_closure)
         run_args["loop_closure"] = loop_closure
     checkpoint = None
     if checkpoint_every is not None or resume:
@@ -449,12 +453,9 @@ def run(
 
         fingerprint = {k: v for k, v in run_args.items() if k not in ("chunk", "threads")}
         if kind == "laser":  # a default that changed between versions must not change a resumed run
-            from jaxslam.grid.experiment import coarse_default, recover_default
-            from jaxslam.grid.types import refused_noise_default
-
-            fingerprint["coarse_iterations"] = coarse_default(algorithm)
-            fingerprint["recover_radius"] = recover_default(algorithm)
-            fingerprint["track_refused_noise_scale"] = refused_noise_default(algorithm)
+            fingerprint["coarse_iterations"] = entry.config_default("coarse_iterations")
+            fingerprint["recover_radius"] = entry.config_default("recover_radius")
+            fingerprint["track_refused_noise_scale"] = float(entry.param_default("tracking.refused_noise_scale"))
         checkpoint = Checkpoint(out / "checkpoint.npz", every=checkpoint_every, fingerprint=fingerprint,
                                 resume=resume)
         if resume and not checkpoint.path.exists():

@@ -4,11 +4,11 @@ predictive scan likelihood that is.
 **What carries no gradient in SRUPF-GM** (:mod:`jaxslam.grid.srupf`; the per-scan step
 with tracking, :mod:`jaxslam.grid.tracking`). A keyframe of particle :math:`m`
 predicts :math:`\mathcal N(\mu_m, P_m)` by the square-root UT of the odometry model
-(:math:`Q` from ``q_linear``, ``q_angular``, ``q_linear_per_m``,
-``q_angular_per_rad``, ``q_angular_per_m``), draws a start
+(:math:`Q` from the params' ``srupf.q_linear``, ``srupf.q_angular``, ``srupf.q_linear_per_m``,
+``srupf.q_angular_per_rad``, ``srupf.q_angular_per_m``), draws a start
 :math:`s_m = \mu_m + S_m \epsilon` (reparameterised), hill-climbs from it to the
 corrected pose :math:`\nu_m`, weights by :math:`g \log p(z \mid \nu_m, \text{map}_m)`
-and updates the factor with the matcher noise :math:`R` (``match_noise``, eqs.
+and updates the factor with the matcher noise :math:`R` (``srupf.match_noise``, eqs.
 11-16). The weight depends on :math:`Q` and :math:`R` only through :math:`\nu_m`,
 and :math:`\nu_m` is the start plus a move chosen by ``argmax`` over a lattice of
 candidates (:func:`jaxslam.grid.matching.hill_climb`), projected on the directions
@@ -39,7 +39,7 @@ scan under SRUPF-GM's own prediction and tempered weight,
     \qquad \epsilon_{mk} \sim \mathcal N(0, I_3),
 
 (:math:`\bar w` the filter's normalised weights before the step, :math:`g` =
-``weight_gain``, :math:`K` = ``samples``; the samples are drawn apart from the
+``weights.gain``, :math:`K` = ``samples``; the samples are drawn apart from the
 filter's own keys; :math:`\mu_m, S_m` the prediction from the particle's keyframe
 pose and factor with the motion known before scan :math:`t`: the motion tracked up to
 scan :math:`t-1` composed with scan :math:`t`'s odometry), an importance-sampling
@@ -84,12 +84,14 @@ from jaxslam.grid import srupf
 from jaxslam.grid.filter import match_geometry, particle_reader, score_model
 from jaxslam.grid.score import scan_log_likelihood
 from jaxslam.grid.tracking import keyframe_noise_scale, track
-from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
+from jaxslam.grid.types import (
+    GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry, get_path, param_paths, with_values,
+)
 
-# The noise levels calibrated by default (log space): Q's constant and
-# motion-proportional parts, and the matcher noise R (a vector of three).
-GRID_NOISE_NAMES = ("q_linear", "q_angular", "q_linear_per_m", "q_angular_per_rad", "q_angular_per_m",
-                    "match_noise")
+# The noise levels calibrated by default (log space), by their paths in the params tree:
+# Q's constant and motion-proportional parts, and the matcher noise R (a vector of three).
+GRID_NOISE_NAMES = ("srupf.q_linear", "srupf.q_angular", "srupf.q_linear_per_m", "srupf.q_angular_per_rad",
+                    "srupf.q_angular_per_m", "srupf.match_noise")
 
 
 class Carry(NamedTuple):
@@ -100,24 +102,24 @@ class Carry(NamedTuple):
 
 
 def noise_sizes(params: GridSlamParams, names: Sequence[str]) -> list[int]:
-    """Entries of each named parameter (1 for a scalar, 3 for ``match_noise``)."""
-    return [int(np.size(getattr(params, name))) for name in names]
+    """Entries of each parameter, by path (1 for a scalar, 3 for ``srupf.match_noise``)."""
+    return [int(np.size(get_path(params, name))) for name in names]
 
 
 def with_log_noise(params: GridSlamParams, log_noise: Array, names: Sequence[str]) -> GridSlamParams:
-    """``params`` with the named levels set to ``exp`` of consecutive entries of
-    ``log_noise`` (a vector parameter takes as many entries as it has)."""
+    """``params`` with the levels at ``names`` (paths) set to ``exp`` of consecutive
+    entries of ``log_noise`` (a vector parameter takes as many entries as it has)."""
     values, i = {}, 0
     for name, size in zip(names, noise_sizes(params, names)):
-        current = getattr(params, name)
+        current = get_path(params, name)
         values[name] = jnp.exp(log_noise[i:i + size]).reshape(jnp.shape(current)).astype(current.dtype)
         i += size
-    return params._replace(**values)
+    return with_values(params, values)
 
 
 def log_noise_of(params: GridSlamParams, names: Sequence[str]) -> np.ndarray:
     """The log of the named levels, flattened in order."""
-    return np.log(np.concatenate([np.ravel(np.asarray(getattr(params, n), np.float64)) for n in names]))
+    return np.log(np.concatenate([np.ravel(np.asarray(get_path(params, n), np.float64)) for n in names]))
 
 
 def values_of(log_noise: Any, params: GridSlamParams, names: Sequence[str]) -> dict[str, Any]:
@@ -126,7 +128,7 @@ def values_of(log_noise: Any, params: GridSlamParams, names: Sequence[str]) -> d
     values = np.exp(np.asarray(log_noise, np.float64))
     for name, size in zip(names, noise_sizes(params, names)):
         chunk = values[i:i + size]
-        out[name] = float(chunk[0]) if np.ndim(getattr(params, name)) == 0 else chunk.tolist()
+        out[name] = float(chunk[0]) if np.ndim(get_path(params, name)) == 0 else chunk.tolist()
         i += size
     return out
 
@@ -154,12 +156,12 @@ def predictive_log_likelihood(
         read = particle_reader(state, table, config)
 
         def one(pose):
-            return scan_log_likelihood(read, pose, local_points, mask, params.laser_offset, config.layout, model,
+            return scan_log_likelihood(read, pose, local_points, mask, params.sensor.laser_offset, config.layout, model,
                                        config.score_kernel, config.free_check)[0]
 
         return jax.vmap(one)(particle_poses)
 
-    log_lik = params.weight_gain * jax.vmap(particle)(state.maps.tables, poses)  # (P, K)
+    log_lik = params.weights.gain * jax.vmap(particle)(state.maps.tables, poses)  # (P, K)
     per_particle = logsumexp(log_lik, axis=1) - jnp.log(jnp.asarray(samples, dtype))
     total = logsumexp(normalize_log_weights(state.log_weights) + per_particle)
     return total, prediction
@@ -192,7 +194,7 @@ def differentiable_scan_step(
     scale = keyframe_noise_scale(params, config, fixed.since_keyframe[4] + jnp.logical_not(accepted))
     prediction = jax.vmap(srupf.predict, (0, 0, None, None, None))(fixed.poses, carry.pose_sqrt_covs, motion, params,
                                                                    scale)
-    noise = jnp.diag(params.match_noise.astype(prediction.mean.dtype))
+    noise = jnp.diag(params.srupf.match_noise.astype(prediction.mean.dtype))
     update = jax.vmap(srupf.sqrt_measurement_update, (0, 0, None))(
         prediction, jax.lax.stop_gradient(info.poses), noise
     )
@@ -325,7 +327,7 @@ def calibrate_grid(
     from jaxslam.calibrate.fit import CalibrationResult, ascend, select_iterate, split_window
     from jaxslam.grid.experiment import run_grid_slam
     from jaxslam.grid.range_rule import apply_range_rule
-    from jaxslam.grid.types import default_params
+    from jaxslam.grid.algorithms import grid_algorithm
 
     names = tuple(names)
     if min(particles, filters, steps, samples, validation_filters) < 1:
@@ -344,10 +346,10 @@ def calibrate_grid(
                               seed=seed, params=overrides, config=config, progress=False, dtype=dtype)
     layout = dataclasses.replace(reference.config.layout, slots=2 * reference.config.layout.slots)
     cfg = dataclasses.replace(reference.config, layout=layout, num_particles=particles)
-    angles = overrides.pop("beam_angles", log.angles)
-    offset = overrides.pop("laser_offset", log.laser_offset)
-    prm = default_params(angles, offset, num_particles=particles, dtype=dtype, **overrides)
-    unknown = [n for n in names if n not in prm._fields]
+    angles = overrides.pop("sensor.beam_angles", log.angles)
+    offset = overrides.pop("sensor.laser_offset", log.laser_offset)
+    prm = grid_algorithm("srupf-gm").make_params(angles, offset, dtype=dtype, values=overrides)
+    unknown = [n for n in names if n not in param_paths()]
     if unknown:
         raise ValueError(f"unknown parameter(s) {unknown}")
     gradient, _ = programs(cfg, names, samples)
@@ -377,8 +379,8 @@ def calibrate_grid(
 
 
 def trajectory_columns(params: GridSlamParams, names: Sequence[str]) -> tuple[str, ...]:
-    """A name per entry of the log vector (``match_noise[0]`` ... for a vector)."""
-    return tuple(name if size == 1 and np.ndim(getattr(params, name)) == 0 else f"{name}[{i}]"
+    """A name per entry of the log vector (``srupf.match_noise[0]`` ... for a vector)."""
+    return tuple(name if size == 1 and np.ndim(get_path(params, name)) == 0 else f"{name}[{i}]"
                  for name, size in zip(names, noise_sizes(params, names)) for i in range(size))
 
 

@@ -24,8 +24,6 @@ class ParamSpec(NamedTuple):
         low: smallest allowed value (``-inf``: none); every value must be finite.
         high: largest allowed value (``inf``: none).
         low_open: ``low`` itself is not allowed (``> low``, as for a standard deviation).
-        field: the ``Params`` field it sets, where the name differs (GMapping's ``str``
-            is the field ``str_``, ``str`` being a Python builtin).
         algorithms: the algorithms that use it; ``None``: every filter of its family.
     """
 
@@ -34,7 +32,6 @@ class ParamSpec(NamedTuple):
     low: float = -math.inf
     high: float = math.inf
     low_open: bool = False
-    field: str | None = None
     algorithms: tuple[str, ...] | None = None
 
     def allowed(self) -> str:

@@ -10,7 +10,10 @@ Modules:
 * :mod:`~jaxslam.grid.score` — map evidence at beam end points, scan likelihood.
 * :mod:`~jaxslam.grid.matching` — hill climbing (GMapping), the covariance-ellipse
   search (SRUPF-GM) and an optax gradient refinement.
-* :mod:`~jaxslam.grid.types` — config, params, state, info, inputs.
+* :mod:`~jaxslam.grid.types` — config, params (one part per component, each with its
+  defaults), state, info, inputs.
+* :mod:`~jaxslam.grid.algorithms` — the filters by their command-line names: each one's
+  step and its own defaults.
 * :mod:`~jaxslam.grid.filter` — ``init`` and the shared tail of both filters' steps.
 * :mod:`~jaxslam.grid.driver` — the grid run loop: chunks through the cached runners of
   :mod:`jaxslam.runtime.driver` (step keys, jit policy), map growth.
@@ -24,17 +27,31 @@ Modules:
 * :mod:`~jaxslam.grid.experiment` — :func:`~jaxslam.grid.experiment.run_grid_slam` on a CARMEN log.
 """
 
-from jaxslam.grid import driver, export, filter, gmapping, matching, paged, rays, score, srupf, types, update
+from jaxslam.grid import (
+    algorithms, driver, export, filter, gmapping, matching, paged, rays, score, srupf, types, update,
+)
 from jaxslam.grid import map as map
 from jaxslam.grid.filter import best_particle, init
+from jaxslam.grid.algorithms import GRID_ALGORITHMS, GridAlgorithm, grid_algorithm
 from jaxslam.grid.types import (
+    ClosureParams,
+    ClosureState,
+    GMappingNoise,
     GridSlamConfig,
     GridSlamInfo,
     GridSlamParams,
     GridSlamState,
+    KeyframeParams,
+    MapParams,
+    MatcherParams,
     Odometry,
     Scan,
-    default_params,
+    SensorParams,
+    SrupfNoise,
+    TrackingParams,
+    WeightParams,
+    get_path,
+    with_values,
 )
 from jaxslam.grid.export import save_map
 from jaxslam.grid.mapfile import OccupancyMap, load_map
@@ -42,8 +59,7 @@ from jaxslam.grid.map import GridSpec
 
 # The whole-run entry points read logs (jaxslam.datasets): loaded on first use, so that
 # importing a kernel module does not import the loaders.
-_ENTRY_POINTS = {"GridSlamResult": "jaxslam.grid.experiment", "make_config": "jaxslam.grid.experiment",
-                 "run_grid_slam": "jaxslam.grid.experiment"}
+_ENTRY_POINTS = {"GridSlamResult": "jaxslam.grid.experiment", "run_grid_slam": "jaxslam.grid.experiment"}
 
 
 def __getattr__(name: str):
@@ -55,6 +71,22 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "GRID_ALGORITHMS",
+    "ClosureParams",
+    "ClosureState",
+    "GMappingNoise",
+    "GridAlgorithm",
+    "KeyframeParams",
+    "MapParams",
+    "MatcherParams",
+    "SensorParams",
+    "SrupfNoise",
+    "TrackingParams",
+    "WeightParams",
+    "algorithms",
+    "get_path",
+    "grid_algorithm",
+    "with_values",
     "GridSlamConfig",
     "GridSlamResult",
     "GridSlamInfo",
@@ -70,12 +102,10 @@ __all__ = [
     "paged",
     "rays",
     "types",
-    "default_params",
     "export",
     "gmapping",
     "init",
     "load_map",
-    "make_config",
     "map",
     "matching",
     "run_grid_slam",

@@ -7,8 +7,8 @@ of a closure, the follow-up of a held candidate and the climbs from the candidat
 the loop-closure search (:mod:`jaxslam.grid.closure`). Each climb written out on its own
 puts another copy of the score kernel into the compiled program, about a second of
 XLA's compilation each. Here each of them is a :class:`Phase`: a number of lanes (one
-climb each, in turn), whether it climbs the coarse score (``coarse_sigma``,
-``coarse_iterations``) or the narrow one (``score_sigma``, ``match_iterations``), and
+climb each, in turn), whether it climbs the coarse score (``matcher.coarse_sigma``,
+``coarse_iterations``) or the narrow one (``matcher.score_sigma``, ``match_iterations``), and
 two small functions, ``prepare(lane, carry) -> (carry, active, start)`` and
 ``take(lane, carry, active, pose, score) -> carry``, over a carry (a dict) the phases
 share. :func:`run_phases` runs them all in one loop around one climb
@@ -63,7 +63,7 @@ def run_phases(score_at, phases: list[Phase], carry: dict, params, config) -> di
     coarse = np.asarray([phase.coarse for phase in phases])
     dtype = jax.tree_util.tree_leaves(carry)[0].dtype
     basis = gmapping_basis(params, dtype)
-    sigma = (jnp.asarray(params.score_sigma, dtype), jnp.asarray(params.coarse_sigma, dtype))
+    sigma = (jnp.asarray(params.matcher.score_sigma, dtype), jnp.asarray(params.matcher.coarse_sigma, dtype))
 
     def prepare(i, carry):
         k, ln = jnp.asarray(kind)[i], jnp.asarray(lane)[i]

@@ -31,8 +31,8 @@ the tracking's own matcher and score). The best refined pose
 .. math:: s_0 < \tau_{trigger}, \qquad f_0 \ge f_{min}, \qquad s^* \ge s_{min},
     \qquad s^* \ge g\, s_0, \qquad |x^*_{xy} - x_{0,xy}| \le \max(j, \beta d)
 
-(scores as fractions of the matched beams; ``closure_trigger``, ``closure_conflict``,
-``closure_min_score``, ``closure_gain``, ``closure_jump``, ``closure_drift``), with
+(scores as fractions of the matched beams; ``closure.trigger``, ``closure.conflict``,
+``closure.min_score``, ``closure.gain``, ``closure.jump``, ``closure.drift``), with
 :math:`f_0` the fraction of beams whose end point at :math:`x_0` lies in known free
 space (:func:`conflict_fraction`, recorded for every scan as ``Info.track_conflict``)
 and :math:`d` the odometry distance since the last closure. The search runs only
@@ -42,10 +42,11 @@ score like the local match), the minimum keeps sparse scenes, where even right
 matches score 0.1-0.3, from taking a chance alignment.
 
 A candidate is *held* (its world correction :math:`C = x^* \ominus_w x_0`, that is
-:math:`x^* = C \oplus x_0`, in the state's ``closure_memory``) and confirmed by the
+:math:`x^* = C \oplus x_0`, in the state's ``closure``, a
+:class:`~jaxslam.grid.types.ClosureState`) and confirmed by the
 scans that follow: each of them climbs from :math:`C \oplus x_0'` (its own local
 match moved by the held correction) and must pass the same tests. After
-``closure_confirm`` (3) wins in a row the candidate replaces the local match; one loss
+``closure.confirm`` (3) wins in a row the candidate replaces the local match; one loss
 drops it (:func:`closure_phases`). The bound on the jump is the drift the tracking can
 have gathered since the last closure, :math:`\beta` = 0.5 m per metre of odometry,
 and at least :math:`j` = 0.5 m: right after a closure the robot is on the old map,
@@ -58,7 +59,7 @@ closure's position correction only the part the scan constrains, as for any matc
 the pose, not the map already written, so the place a return matches may have been
 drawn before earlier closures moved the path, and be off by up to the sum
 :math:`\Sigma` of their corrections; the tracking itself drifts by about
-:math:`\gamma d` (``closure_reach_rate``). With the option the jump is bounded by
+:math:`\gamma d` (``closure.reach_rate``). With the option the jump is bounded by
 :math:`\min(\beta d, \gamma d + \Sigma)` (:func:`closure_outcome`): before the first
 closure by the tracking's drift alone, where :math:`\beta d` lets an alias metres away
 pass after a hundred metres of travel.
@@ -70,24 +71,24 @@ few dozen scans. A false closure that passes every test at the candidate still s
 itself afterwards, which the watch below uses. Three tests at the candidate do not
 separate false closures from right ones (right and wrong judged by a benchmark's
 relations), so they are off or absent: the conflict test
-(``closure_conflict``, default 0), a margin over the best candidate at least 1 m away,
+(``closure.conflict``, default 0), a margin over the best candidate at least 1 m away,
 and the share of beams in known free space at the candidate. A refused right closure
 leaves the drift in place until the next chance, which may be far.
 
-**Watch and undo** (``closure_undo``; 1: off). Averaged over ``closure_watch`` m of
+**Watch and undo** (``closure.undo``; 1: off). Averaged over ``closure.watch`` m of
 odometry after a closure, the share of beams ending in known free space separates
 false closures from right ones far better than any test at the candidate: the scans
 that show an alias come after the jump. So a closure taken is watched and undone where
-that mean exceeds ``closure_undo`` (0.11: lower thresholds undo right closures along
+that mean exceeds ``closure.undo`` (0.11: lower thresholds undo right closures along
 long corridors, whose kept closures watch at up to about 0.11); the undo takes back the
 correction the tracking applied (the closure's, less what
 :func:`jaxslam.grid.tracking.constrained_pose` dropped), whatever the match at the
 undone pose scores, and refuses the same candidate afterwards. The map keeps what the
 scans in between wrote. The search, with its watch and undo, is SRUPF-GM's default
-(:func:`jaxslam.grid.experiment.make_config`); the GMapping-style filter, a baseline
+(:data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`); the GMapping-style filter, a baseline
 for GMapping, which has no such search, keeps it off.
 
-**Fast undo** (``closure_undo_fast``; 1: off, the default) undoes a closure before the
+**Fast undo** (``closure.undo_fast``; 1: off, the default) undoes a closure before the
 watch ends, once the watched share averages over it on at least two scans and
 :data:`FAST_SHARE` of the watch. It undoes false closures a few scans sooner but also
 right ones in sparse scenes, so it is an option.
@@ -99,13 +100,13 @@ poses are reported in the frame it kept, :math:`A^{-1} \oplus x_s` (as the path 
 lineage is reported after the resamplings that chose it). The filter itself is
 unchanged; ``Info.track_undo`` records what each undo took back.
 
-**No closure inside a watch** (``closure_nest``; 0: the default). After a false closure
+**No closure inside a watch** (``closure.nest``; 0: the default). After a false closure
 the tracking's matches score low and the search starts again; a closure taken inside
 the watch would restart it, and the first one would never be judged. So the search
-waits until the watch has ended (kept or undone); ``closure_nest`` 1 lets it nest.
+waits until the watch has ended (kept or undone); ``closure.nest`` 1 lets it nest.
 
 **The end of the run** (:func:`jaxslam.grid.undone_closures.judge_at_end`,
-``closure_undo_end``). A log can end inside a watch; the path reported judges such a
+``closure.undo_end``). A log can end inside a watch; the path reported judges such a
 closure on the scans it had, with a higher bar (0.2) because fewer scans are averaged.
 Only the reported path and keyframe poses move; the filter is unchanged.
 
@@ -115,7 +116,7 @@ at 8 m the window holds more aliases than right closures gain. The candidates gr
 :math:`R^2` (63,000 at 6 m against 29,000 at 4 m), on the scans under the trigger only.
 
 **Reach that grows with the distance since the last closure.** Where
-``closure_reach_rate`` :math:`\gamma` times the odometry distance :math:`d` since the
+``closure.reach_rate`` :math:`\gamma` times the odometry distance :math:`d` since the
 last closure exceeds ``R``, a second coarse stage (``config.closure_radius_far``,
 10 m) scores the candidates of the near search's square and those within
 :math:`\min(\gamma d, R_{far})` of :math:`x_0` (a disc: the drift it bounds has no
@@ -169,6 +170,7 @@ from jaxslam.core import se2
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.climbs import Phase, best_of
 from jaxslam.grid.score import cell_coords
+from jaxslam.grid.types import ClosureState
 
 POOL = 2
 """Fine cells per coarse cell along each axis (10 cm coarse cells at 5 cm)."""
@@ -191,20 +193,8 @@ REFINE = 4
 """Headings whose best candidate is refined on the full map."""
 
 FAST_SHARE = 0.2
-"""Share of ``closure_watch`` after which ``closure_undo_fast`` can undo a closure (with
+"""Share of ``closure.watch`` after which ``closure.undo_fast`` can undo a closure (with
 at least two scans watched: a robot standing still repeats one scan's conflict)."""
-
-MEMORY = 15
-"""Length of the state's ``closure_memory`` (:func:`closure_phases`); one more with
-``config.closure_map_bound`` (:func:`memory_length`)."""
-
-
-def memory_length(config) -> int:
-    """Length of the state's ``closure_memory`` for ``config``: :data:`MEMORY`, and one
-    slot more with ``config.closure_map_bound``, the sum of the corrections the closures
-    kept so far (:func:`closure_outcome`)."""
-    return MEMORY + int(bool(getattr(config, "closure_map_bound", False)))
-
 
 def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation) -> tuple[Array, Array]:
     r"""The coarse map around ``centre (2,)`` (world, m): ``(coarse (n, n) [row, col],
@@ -314,7 +304,7 @@ def coarse_candidates(read: CellReader, frame, local_points: Array, weights: Arr
     shifts = jnp.asarray(np.arange(-m, m + 1) * step, dtype)
     turns = jnp.asarray(np.arange(-k, k + 1) * TURN_STEP, dtype)
 
-    coarse, corner = coarse_window(read, frame, start[:2], window_half(frame, radius), params.occ_saturation)
+    coarse, corner = coarse_window(read, frame, start[:2], window_half(frame, radius), params.map.occ_saturation)
     idx = np.arange(0, local_points.shape[0], BEAM_STRIDE)
     points = local_points[idx]
     ranges = jnp.sqrt(jnp.sum(points * points, -1))
@@ -355,10 +345,11 @@ def conflict_fraction(read: CellReader, frame, pose: Array, local_points: Array,
 
 
 class Watch(NamedTuple):
-    """The closure memory read for one scan, before its climbs (:func:`watch_closure`)."""
+    """The closure state read for one scan, before its climbs (:func:`watch_closure`)."""
 
     conflict: Array  # () conflict_fraction at the local match
-    held: Array  # (4,) the held candidate's correction C and its wins
+    held: Array  # (3,) the held candidate's correction C
+    held_scans: Array  # () the scans it won
     travelled: Array  # () odometry since the last closure
     applied: Array  # (3,) the last closure's correction A
     watching: Array  # () bool, still watched after this scan
@@ -372,31 +363,31 @@ class Watch(NamedTuple):
     @staticmethod
     def empty(dtype) -> "Watch":
         zero, no = jnp.zeros((), dtype), jnp.asarray(False)
-        return Watch(zero, jnp.zeros((4,), dtype), zero, jnp.zeros((3,), dtype), no, zero, zero, zero, no, no, no)
+        pose = jnp.zeros((3,), dtype)
+        return Watch(zero, pose, zero, zero, pose, no, zero, zero, zero, no, no, no)
 
 
 def watch_closure(read: CellReader, frame, matched: Array, local_points: Array, weights: Array,
-                  laser_offset: Array, count: Array, memory: Array, params) -> Watch:
+                  laser_offset: Array, count: Array, memory: ClosureState, params) -> Watch:
     """The watch of the last closure and the held candidate, read from ``memory`` with
     the local match's conflict (see :func:`closure_phases`)."""
     dtype = matched.dtype
     conflict = conflict_fraction(read, frame, matched, local_points, weights, laser_offset, count)
-    held = memory[:4]
-    travelled = memory[4]
-    applied = memory[5:8]
-    watching = memory[8] > 0
-    conflict_sum = memory[9] + jnp.where(watching, conflict, 0.0)
-    conflict_count = memory[10] + jnp.where(watching, 1.0, 0.0)
-    before = memory[11]
-    refused = memory[8] < 0
+    travelled = memory.travelled
+    applied = memory.applied
+    watching = memory.watch > 0
+    conflict_sum = memory.conflict_sum + jnp.where(watching, conflict, 0.0)
+    conflict_count = memory.conflict_count + jnp.where(watching, 1.0, 0.0)
+    before = memory.before
+    refused = memory.watch < 0
     undo = watching & (
-        ((travelled >= jnp.asarray(params.closure_watch, dtype))
-         & (conflict_sum > jnp.asarray(params.closure_undo, dtype) * conflict_count))
-        | ((conflict_count >= 2) & (travelled >= FAST_SHARE * jnp.asarray(params.closure_watch, dtype))
-           & (conflict_sum > jnp.asarray(params.closure_undo_fast, dtype) * conflict_count)))
-    watching = watching & ~undo & (travelled < jnp.asarray(params.closure_watch, dtype))
-    return Watch(conflict, held, travelled, applied.astype(dtype), watching, conflict_sum, conflict_count, before,
-                 refused, undo, held[3] > 0)
+        ((travelled >= jnp.asarray(params.closure.watch, dtype))
+         & (conflict_sum > jnp.asarray(params.closure.undo, dtype) * conflict_count))
+        | ((conflict_count >= 2) & (travelled >= FAST_SHARE * jnp.asarray(params.closure.watch, dtype))
+           & (conflict_sum > jnp.asarray(params.closure.undo_fast, dtype) * conflict_count)))
+    watching = watching & ~undo & (travelled < jnp.asarray(params.closure.watch, dtype))
+    return Watch(conflict, memory.held, memory.held_scans, travelled, applied.astype(dtype), watching, conflict_sum,
+                 conflict_count, before, refused, undo, memory.held_scans > 0)
 
 
 def closure_carry(dtype) -> dict:
@@ -406,7 +397,7 @@ def closure_carry(dtype) -> dict:
 
 
 def closure_phases(read: CellReader, frame, local_points: Array, weights: Array, laser_offset: Array,
-                   count: Array, memory: Array, params, config) -> list[Phase]:
+                   count: Array, memory: ClosureState, params, config) -> list[Phase]:
     r"""The climbs of the loop-closure search for the local match in ``carry``
     (``matched``, ``score``: raw score over ``count`` beams), as phases of the
     tracking's one climb (:mod:`jaxslam.grid.climbs`); :func:`closure_outcome` then
@@ -416,8 +407,8 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
     tracking applies whatever its score, the number of scans since that closure was
     taken and its correction :math:`A`, for :func:`jaxslam.grid.undone_closures.take_back`).
 
-    ``memory (MEMORY,)`` (the state's ``closure_memory``, this scan's odometry
-    included) holds the candidate held from the scans before, the world correction
+    ``memory`` (the state's :class:`~jaxslam.grid.types.ClosureState`, this scan's
+    odometry included) holds the candidate held from the scans before, the world correction
     :math:`C` (pose ``(x, y, θ)``, the candidate :math:`C \oplus x_0`), the number of
     scans it won (0: none), the odometry distance :math:`d` since the last closure, the
     correction :math:`A` of the last closure taken (as the tracking applied it; set by
@@ -432,20 +423,20 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
     .. math:: s(x) \ge s_{min}\, n, \qquad s(x) \ge g\, s_0, \qquad
         |x_{xy} - x_{0,xy}| \le \max(j, \beta d), \qquad |C_{xy} - A_{xy}| > j \text{ after an undo}
 
-    (``closure_min_score``, ``closure_gain``, ``closure_jump``, ``closure_drift``), and
-    replaces the match once it has won ``closure_confirm`` scans in a row; the held
+    (``closure.min_score``, ``closure.gain``, ``closure.jump``, ``closure.drift``), and
+    replaces the match once it has won ``closure.confirm`` scans in a row; the held
     candidate returned is then empty again, as it is after a loss, and :math:`d`
     restarts from 0.
 
-    Watch and undo: over the ``closure_watch`` m of odometry after a closure, the
+    Watch and undo: over the ``closure.watch`` m of odometry after a closure, the
     conflicts of the local matches (in the closed frame) are averaged; where the mean
-    exceeds ``closure_undo`` the beams keep ending in space the old map has seen
+    exceeds ``closure.undo`` the beams keep ending in space the old map has seen
     through, the closure was an alias, and it is undone: the match climbs again from
     :math:`A^{-1} \oplus x_0`, :math:`d` is restored, and candidates whose correction
-    lies within ``closure_jump`` of the one the search found for it are refused from
+    lies within ``closure.jump`` of the one the search found for it are refused from
     then on (the same alias would win again).
     """
-    dtype = memory.dtype
+    dtype = memory.travelled.dtype
     lanes = refine_count(config)
 
     def undo_prepare(lane, carry):
@@ -458,7 +449,7 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
 
     def follow_prepare(lane, carry):
         watch = carry["watch"]
-        return carry, watch.holding, se2.compose(watch.held[:3].astype(dtype), carry["matched"])
+        return carry, watch.holding, se2.compose(watch.held.astype(dtype), carry["matched"])
 
     def follow_take(lane, carry, active, pose, score):
         return {**carry, "followed": jnp.where(active, pose, carry["matched"]),
@@ -467,12 +458,12 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
     def search_prepare(lane, carry):
         watch, matched, score = carry["watch"], carry["matched"], carry["score"]
         travelled = jnp.where(watch.undo, watch.travelled + watch.before, watch.travelled)
-        # No search while the last closure is watched (unless ``closure_nest``): a closure
+        # No search while the last closure is watched (unless ``closure.nest``): a closure
         # taken inside another's watch would restart it, and the first would never be judged.
-        nest_ok = ~watch.watching | (jnp.asarray(params.closure_nest, dtype) > 0)
+        nest_ok = ~watch.watching | (jnp.asarray(params.closure.nest, dtype) > 0)
         triggered = ~watch.undo & ~watch.holding & nest_ok & (
-            score / count < jnp.asarray(params.closure_trigger, dtype)) & (
-            watch.conflict >= jnp.asarray(params.closure_conflict, dtype))
+            score / count < jnp.asarray(params.closure.trigger, dtype)) & (
+            watch.conflict >= jnp.asarray(params.closure.conflict, dtype))
 
         def coarse(radius=None, reach=None):
             return coarse_candidates(read, frame, local_points, weights, laser_offset, matched, params, config,
@@ -482,7 +473,7 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
             far_radius = float(config.closure_radius_far)
             if far_radius <= float(config.closure_radius):
                 return coarse()
-            reach = jnp.minimum(jnp.asarray(params.closure_reach_rate, dtype) * travelled, far_radius)
+            reach = jnp.minimum(jnp.asarray(params.closure.reach_rate, dtype) * travelled, far_radius)
             return jax.lax.cond(reach > float(config.closure_radius), lambda: coarse(far_radius, reach), coarse)
 
         candidates = jax.lax.cond(triggered, wide, lambda: jnp.zeros((lanes, 3), dtype))
@@ -500,20 +491,19 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
             Phase(1, False, search_prepare, search_take), Phase(lanes - 1, False, next_prepare, search_take)]
 
 
-def closure_outcome(carry: dict, count: Array, memory: Array,
-                    params) -> tuple[Array, Array, Array, Array, Array, Array]:
+def closure_outcome(carry: dict, count: Array, memory: ClosureState,
+                    params) -> tuple[Array, Array, Array, Array, Array, ClosureState]:
     r"""The local match after :func:`closure_phases` (``carry``), or the closure that
     replaces it: ``(pose, score, closed, undo, conflict, memory)`` (see
     :func:`closure_phases`).
 
-    A ``memory`` of :data:`MEMORY` + 1 slots (``config.closure_map_bound``,
-    :func:`memory_length`) also holds :math:`\Sigma`, the sum of the position
+    With ``config.closure_map_bound``, ``memory.kept`` holds :math:`\Sigma`, the sum of the position
     corrections :math:`|A_{xy}|` of the closures taken and not undone, and bounds the
     jump by the map's own offset as well:
 
     .. math:: |x^*_{xy} - x_{0,xy}| \le \max\big(j,\ \min(\beta d,\ \gamma d + \Sigma)\big)
 
-    (:math:`\gamma` = ``closure_reach_rate``). The tracking drifts by at most about
+    (:math:`\gamma` = ``closure.reach_rate``). The tracking drifts by at most about
     :math:`\gamma d` between closures; the place matched may have been drawn before
     earlier closures moved the path, which can put it off by at most their sum. Before
     the first closure the map is one drawing and the bound is the tracking's drift
@@ -524,58 +514,59 @@ def closure_outcome(carry: dict, count: Array, memory: Array,
     holding, triggered, undo = watch.holding, carry["searching"], watch.undo
     pose = jnp.where(holding, carry["followed"], jnp.where(triggered, carry["found_pose"], matched))
     found = jnp.where(holding, carry["followed_score"], jnp.where(triggered, carry["found"], score))
-    held, applied, watching = watch.held, watch.applied, watch.watching
+    applied, watching = watch.applied, watch.watching
     conflict_sum, conflict_count, before, refused = watch.conflict_sum, watch.conflict_count, watch.before, watch.refused
     correction = se2.compose(pose, se2.inverse(matched))
-    jump = jnp.asarray(params.closure_jump, dtype)
-    candidate = memory[12:15]
+    jump = jnp.asarray(params.closure.jump, dtype)
+    candidate = memory.found
     alias = (refused | undo) & (jnp.hypot(correction[0] - candidate[0], correction[1] - candidate[1]) <= jump)
-    bound = jnp.asarray(params.closure_drift, dtype) * travelled
-    map_bound = memory.shape[0] > MEMORY
-    if map_bound:  # the sum of the kept corrections, less the one this scan undoes
-        offset = memory[MEMORY] - jnp.where(undo, jnp.hypot(applied[0], applied[1]), 0.0)
-        bound = jnp.minimum(bound, jnp.asarray(params.closure_reach_rate, dtype) * travelled + offset)
+    bound = jnp.asarray(params.closure.drift, dtype) * travelled
+    offset = None
+    if memory.kept is not None:  # the sum of the kept corrections, less the one this scan undoes
+        offset = memory.kept - jnp.where(undo, jnp.hypot(applied[0], applied[1]), 0.0)
+        bound = jnp.minimum(bound, jnp.asarray(params.closure.reach_rate, dtype) * travelled + offset)
     wins = (
         (holding | triggered) & ~alias
-        & (found / count >= jnp.asarray(params.closure_min_score, dtype))
-        & (found >= jnp.asarray(params.closure_gain, dtype) * score)
+        & (found / count >= jnp.asarray(params.closure.min_score, dtype))
+        & (found >= jnp.asarray(params.closure.gain, dtype) * score)
         & (jnp.hypot(pose[0] - matched[0], pose[1] - matched[1]) <= jnp.maximum(jump, bound))
     )
-    scans = jnp.where(wins, held[3] + 1, 0.0)
-    closed = wins & (scans >= jnp.asarray(params.closure_confirm, dtype))
-    held = jnp.where(wins & ~closed, jnp.concatenate([correction, scans[None]]), jnp.zeros((4,), dtype))
+    scans = jnp.where(wins, watch.held_scans + 1, 0.0)
+    closed = wins & (scans >= jnp.asarray(params.closure.confirm, dtype))
+    keep = wins & ~closed
     # watch state: 1 watching the last closure, -1 its correction refused (undone), 0 neither
     state = jnp.where(closed, 1.0, jnp.where(undo | refused, -1.0, jnp.where(watching, 1.0, 0.0)))
-    memory = jnp.concatenate([
-        held,
-        jnp.where(closed, 0.0, travelled)[None],
-        jnp.where(closed, correction, applied),
-        state[None],
-        jnp.where(closed | ~watching, 0.0, conflict_sum)[None],
-        jnp.where(closed | ~watching, 0.0, conflict_count)[None],
-        jnp.where(closed, travelled, jnp.where(undo, 0.0, before))[None],
-        jnp.where(closed, correction, candidate),
-        *([offset[None]] if map_bound else []),  # record_applied adds a closure's correction
-    ])
+    memory = ClosureState(
+        held=jnp.where(keep, correction, jnp.zeros((3,), dtype)),
+        held_scans=jnp.where(keep, scans, jnp.zeros((), dtype)),
+        travelled=jnp.where(closed, 0.0, travelled).astype(dtype),
+        applied=jnp.where(closed, correction, applied),
+        watch=state.astype(dtype),
+        conflict_sum=jnp.where(closed | ~watching, 0.0, conflict_sum),
+        conflict_count=jnp.where(closed | ~watching, 0.0, conflict_count),
+        before=jnp.where(closed, travelled, jnp.where(undo, 0.0, before)),
+        found=jnp.where(closed, correction, candidate),
+        kept=offset,  # record_applied adds a closure's correction
+    )
     # what an undo takes back, for the path reported
     # (:func:`jaxslam.grid.undone_closures.take_back`): the scans since the closure, A
     taken_back = jnp.where(undo, jnp.concatenate([conflict_count[None], applied.astype(dtype)]), jnp.zeros((4,), dtype))
     return jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, taken_back, watch.conflict, memory
 
 
-def record_applied(memory: Array, taken: Array, correction: Array) -> Array:
+def record_applied(memory: ClosureState, taken: Array, correction: Array) -> ClosureState:
     """``memory`` with :math:`A`, the correction the tracking applied for a closure
     just ``taken`` (its pose over the local match, after the tracking's constraint),
     which an undo takes back."""
-    memory = memory.at[5:8].set(jnp.where(taken, correction, memory[5:8]))
-    if memory.shape[0] > MEMORY:  # the sum of the kept corrections (closure_outcome)
-        memory = memory.at[MEMORY].add(jnp.where(taken, jnp.hypot(correction[0], correction[1]), 0.0))
+    memory = memory._replace(applied=jnp.where(taken, correction, memory.applied))
+    if memory.kept is not None:  # the sum of the kept corrections (closure_outcome)
+        memory = memory._replace(kept=memory.kept + jnp.where(taken, jnp.hypot(correction[0], correction[1]), 0.0))
     return memory
 
 
 __all__ = [
-    "BEAM_STRIDE", "FAST_SHARE", "MEMORY", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
+    "BEAM_STRIDE", "FAST_SHARE", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
     "Watch", "candidate_scores", "closure_carry", "closure_outcome", "closure_phases", "coarse_candidates",
-    "coarse_window", "conflict_fraction", "memory_length", "record_applied", "refine_count", "watch_closure",
+    "coarse_window", "conflict_fraction", "record_applied", "refine_count", "watch_closure",
     "window_half",
 ]

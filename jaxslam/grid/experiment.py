@@ -24,41 +24,37 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxslam.datasets.carmen import CarmenLog, select_keyframes
-from jaxslam.datasets.registry import algorithms, load_dataset_log
-from jaxslam.grid import gmapping, srupf
+from jaxslam.datasets.registry import load_dataset_log
+from jaxslam.grid.algorithms import GRID_ALGORITHMS, GridAlgorithm, grid_algorithm
 from jaxslam.grid.driver import DEFAULT_CHUNK, recompilations, run_filter
 from jaxslam.grid.filter import best_particle
 from jaxslam.grid.mapfile import OccupancyMap
 from jaxslam.grid.paged import PagedLayout, PoolLimitError, pool_stats, stitch, window_side
 from jaxslam.grid.startmap import paged_start, start_cells, start_layout
-from jaxslam.grid.types import (
-    DEFAULT_KEYFRAMES,
-    GridSlamConfig,
-    GridSlamParams,
-    Odometry,
-    Scan,
-    default_keyframes,
-    default_params,
-)
+from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, Scan, get_path, param_paths
 from jaxslam.grid.undone_closures import judge_at_end, reported_undo, take_back
 from jaxslam.grid.range_rule import apply_range_rule
-from jaxslam.grid.recovery import RECOVER_RADIUS
 from jaxslam.grid.rays import required_points
 from jaxslam.grid.tracking import scan_trajectory
 from jaxslam.runtime.keys import seed_key
 from jaxslam.metrics.trajectory_io import se2_between
 
-ALGORITHMS = algorithms("laser")
+ALGORITHMS = tuple(GRID_ALGORITHMS)
+KEYFRAME_PATHS = ("keyframes.linear_update", "keyframes.angular_update", "keyframes.temporal_update")
 # Per-scan outputs of the run kept for every scan (the rest is kept per keyframe).
 PER_SCAN_KEYS = ("poses", "ancestors", "keyframe", "motion", "track_score", "track_accepted", "track_closed",
                  "track_conflict", "track_undo")
 
-def keyframe_rule(linear=None, angular=None, temporal=None, algorithm: str = "srupf-gm") -> tuple[float, float, float]:
+def keyframe_rule(linear=None, angular=None, temporal=None,
+                  algorithm: str | GridAlgorithm = "srupf-gm") -> tuple[float, float, float]:
     """``(linear, angular, temporal)`` thresholds: the given ones, else the filter's
-    defaults (:func:`jaxslam.grid.types.default_keyframes`), applied inside the filter
-    to the tracked motion (:mod:`jaxslam.grid.tracking`), the same for every log."""
+    defaults (``keyframes`` of its params, :mod:`jaxslam.grid.algorithms`), applied
+    inside the filter to the tracked motion (:mod:`jaxslam.grid.tracking`), the same
+    for every log."""
+    entry = grid_algorithm(algorithm) if isinstance(algorithm, str) else algorithm
     given = (linear, angular, temporal)
-    return tuple(float(b if g is None else g) for g, b in zip(given, default_keyframes(algorithm), strict=True))
+    return tuple(float(entry.param_default(path) if g is None else g)
+                 for g, path in zip(given, KEYFRAME_PATHS, strict=True))
 
 
 @dataclasses.dataclass
@@ -103,7 +99,7 @@ class GridSlamResult:
     config: GridSlamConfig
     params: dict[str, Any]
     state: Any = None
-    keyframe_rule: tuple[float, float, float] = DEFAULT_KEYFRAMES
+    keyframe_rule: tuple[float, float, float] = (0.5, 0.5, -1.0)
     map_stats: dict[str, Any] = dataclasses.field(default_factory=dict)
     growths: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     compiler_options: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -209,54 +205,6 @@ def best_trajectory(info_poses, info_ancestors, final_index: int) -> np.ndarray:
     return out
 
 
-def closure_default(algorithm: str) -> bool:
-    """Whether ``algorithm`` runs the loop-closure search by default: SRUPF-GM does (with
-    its watch and undo); the GMapping-style filter, a baseline for GMapping, which has
-    no such search, does not unless asked (measured over the robustness suite: see
-    :mod:`jaxslam.grid.closure`)."""
-    return algorithm != "gmapping"
-
-
-def coarse_default(algorithm: str) -> int:
-    """The coarse-to-fine match's wide climbs by default (``config.coarse_iterations``,
-    :func:`jaxslam.grid.filter.coarse_start`): 4 for SRUPF-GM, measured over the whole
-    robustness suite (``benchmarks/grid_robustness.py``); 0 for the other filters,
-    which it was not measured on."""
-    return 4 if algorithm == "srupf-gm" else 0
-
-
-def recover_default(algorithm: str) -> float:
-    """The recovery from odometry jumps by default (``config.recover_radius``,
-    :mod:`jaxslam.grid.recovery`): :data:`~jaxslam.grid.recovery.RECOVER_RADIUS` for
-    SRUPF-GM, with its wider proposals after refused matches
-    (:func:`jaxslam.grid.types.refused_noise_default`), measured together over the
-    whole robustness suite (``benchmarks/grid_robustness.py``); 0 (off) for the other
-    filters, which they were not measured on."""
-    return RECOVER_RADIUS if algorithm == "srupf-gm" else 0.0
-
-
-def make_config(
-    algorithm: str, particles: int, layout: PagedLayout, num_beams: int, max_points: int, **overrides
-) -> GridSlamConfig:
-    """Static configuration for an algorithm name."""
-    if algorithm not in ALGORITHMS:
-        raise ValueError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}")
-    base = {
-        "matcher": "hill" if algorithm == "gmapping" else "ellipse",
-        "correction": "npc" if algorithm == "srupf-gm-npc" else "pc",
-        "sampling": "posterior" if algorithm == "srupf-gm-npc" else "prior",
-        # The constrained keyframe correction is SRUPF-GM's default; the GMapping-style
-        # filter keeps GMapping's own correction unless asked (measured over the
-        # robustness suite: see jaxslam.grid.gmapping).
-        "constrain_matches": algorithm != "gmapping",
-        "closure": closure_default(algorithm),
-        "coarse_iterations": coarse_default(algorithm),
-        "recover_radius": recover_default(algorithm),
-    }
-    base.update(overrides)
-    return GridSlamConfig(particles, layout, num_beams, max_points, **base)
-
-
 RESOLUTION = 0.05
 """Cell size (m) of a run's maps by default (:func:`run_grid_slam`'s ``resolution``)."""
 
@@ -291,10 +239,13 @@ def run_grid_slam(
             :class:`~jaxslam.datasets.laser_sim.SimulatedLog`), a dataset name known to
             :func:`jaxslam.datasets.registry.load_dataset_log`, or a path.
         algorithm: ``"srupf-gm"`` (pose correction), ``"srupf-gm-npc"`` or
-            ``"gmapping"``.
+            ``"gmapping"`` (:data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`: its step
+            and its defaults).
         particles: number of particles.
         seed: PRNG seed.
-        params: overrides of :func:`jaxslam.grid.types.default_params`.
+        params: values over the algorithm's params, by path (``{"closure.trigger":
+            0.3}``, or a whole part: ``{"closure": ClosureParams(...)}``;
+            :func:`jaxslam.grid.types.with_values`).
         config: overrides of the static :class:`~jaxslam.grid.types.GridSlamConfig` fields
             (``match_stride``, ``match_iterations``, ``refine_steps``, ``matcher``,
             ``resampler``, ``max_points``, ``window_range``).
@@ -302,9 +253,8 @@ def run_grid_slam(
         linear_update, angular_update, temporal_update: keyframe thresholds (m, rad,
             s; GMapping's linearUpdate, angularUpdate, temporalUpdate) on the tracked
             motion (:mod:`jaxslam.grid.tracking`). ``None``: the filter's defaults
-            (:func:`jaxslam.grid.types.default_keyframes`: 0.5 m for SRUPF-GM,
-            GMapping's 1 m for the GMapping-style filter; 0.5 rad; no temporal
-            update), for every log.
+            (``keyframes`` of its params: 0.5 m for SRUPF-GM, GMapping's 1 m for the
+            GMapping-style filter; 0.5 rad; no temporal update), for every log.
         resolution: cell size (m).
         margin: margin (m) around the odometry box for the starting page table
             (:func:`map_layout`; the maps grow beyond it when needed). ``None``: the
@@ -332,7 +282,8 @@ def run_grid_slam(
     """
     name = _dataset_name(log_or_sim)
     log = log_or_sim if isinstance(log_or_sim, CarmenLog) else load_dataset_log(log_or_sim)
-    rule = keyframe_rule(linear_update, angular_update, temporal_update, algorithm)
+    entry = grid_algorithm(algorithm)
+    rule = keyframe_rule(linear_update, angular_update, temporal_update, entry)
     scans = log.num_scans
     if max_keyframes is not None:
         # Cut the log where GMapping's rule on the odometry reaches this many keyframes
@@ -347,15 +298,17 @@ def run_grid_slam(
     times = np.asarray(log.scan_times[:scans], np.float64)
 
     overrides = dict(params or {})
-    angles = overrides.pop("beam_angles", log.angles)
-    laser_offset = overrides.pop("laser_offset", log.laser_offset)
-    for field_name, value in zip(("linear_update", "angular_update", "temporal_update"), rule, strict=True):
-        overrides.setdefault(field_name, value)
-    rule = tuple(float(overrides[k]) for k in ("linear_update", "angular_update", "temporal_update"))
+    angles = overrides.pop("sensor.beam_angles", log.angles)
+    laser_offset = overrides.pop("sensor.laser_offset", log.laser_offset)
+    if "keyframes" in overrides:  # a whole part
+        rule = tuple(float(v) for v in overrides["keyframes"])
+    else:
+        for path, value in zip(KEYFRAME_PATHS, rule, strict=True):
+            overrides.setdefault(path, value)
+        rule = tuple(float(overrides[path]) for path in KEYFRAME_PATHS)
     overrides, ranging = apply_range_rule(overrides, log)
-    prm: GridSlamParams = default_params(angles, laser_offset, num_particles=particles, dtype=dtype,
-                                         algorithm=algorithm, **overrides)
-    usable = float(prm.usable_range)
+    prm: GridSlamParams = entry.make_params(angles, laser_offset, dtype=dtype, values=overrides)
+    usable = float(prm.sensor.usable_range)
     ranges = np.asarray(log.ranges[:scans], np.float64)
     valid = np.asarray(log.valid[:scans]) & np.isfinite(ranges)
     ranges = np.where(valid, ranges, 0.0)
@@ -374,15 +327,14 @@ def run_grid_slam(
         layout = dataclasses.replace(layout, slots=int(pool_slots))
     start = None
     if start_map is not None:
-        start_steps = start_cells(start_map, resolution, float(prm.log_odds_unit), float(prm.l_max))
+        start_steps = start_cells(start_map, resolution, float(prm.map.log_odds_unit), float(prm.map.l_max))
         layout = start_layout(start_steps, start_map, layout, odom, initial_pose, margin)
         start = paged_start(start_steps, layout)
     max_points = cfg_over.pop("max_points", None)
     if max_points is None:
         need = required_points(np.minimum(ranges, usable), valid, resolution)
         max_points = int(np.ceil(need / 1024.0) * 1024)
-    cfg = make_config(algorithm, particles, layout, log.num_beams, max_points, window_range=window_range, **cfg_over)
-    module = gmapping if algorithm == "gmapping" else srupf
+    cfg = entry.make_config(particles, layout, log.num_beams, max_points, window_range=window_range, **cfg_over)
 
     offsets = np.asarray(log.angle_offsets[:scans], np.float64)
     # NumPy inputs: the jitted init and chunk runner take them as they are, whereas
@@ -391,10 +343,11 @@ def run_grid_slam(
     first = Scan(np.asarray(ranges[0], real), np.asarray(valid[0]), np.asarray(offsets[0], real))
     controls = Odometry(np.asarray(increments, real), np.ones(scans - 1, real), np.asarray(np.diff(times), real))
     observations = Scan(np.asarray(ranges[1:], real), np.asarray(valid[1:]), np.asarray(offsets[1:], real))
-    unit = float(prm.log_odds_unit)
-    params_record = {k: np.asarray(v).tolist() for k, v in prm._asdict().items() if k != "beam_angles"}
+    unit = float(prm.map.log_odds_unit)
+    params_record = {path: np.asarray(get_path(prm, path)).tolist() for path in param_paths()
+                     if path != "sensor.beam_angles"}
     state, ys, cfg, stats = run_filter(
-        module.step, seed_key(seed), prm, cfg, first, np.asarray(initial_pose, real), controls,
+        entry.step, seed_key(seed), prm, cfg, first, np.asarray(initial_pose, real), controls,
         observations, chunk=chunk, desc=f"{algorithm} {name} N={particles}", progress=progress,
         checkpoint=checkpoint, unit="scan", start=start,
     )
@@ -404,7 +357,7 @@ def run_grid_slam(
     kf_rows = np.flatnonzero(flags)
     kf_poses = best_trajectory(np.asarray(ys["poses"])[kf_rows], np.asarray(ys["ancestors"])[kf_rows], best)
     # a closure still watched at the end is judged on the scans it had (the undo row after the last scan's)
-    end_undo = judge_at_end(state.closure_memory, prm)
+    end_undo = judge_at_end(state.closure, prm)
     undo = reported_undo(ys["track_undo"], end_undo)
     keyframes, trajectory = scan_trajectory(initial_pose, flags, kf_poses, ys["motion"], undo)
     kf_poses = take_back(np.concatenate([initial_pose[None], np.asarray(kf_poses, np.float64)], 0), keyframes, undo)
@@ -442,13 +395,11 @@ def run_grid_slam(
 
 __all__ = [
     "ALGORITHMS",
-    "DEFAULT_KEYFRAMES",
+    "KEYFRAME_PATHS",
     "RESOLUTION",
     "GridSlamResult",
     "best_trajectory",
-    "closure_default",
     "keyframe_rule",
-    "make_config",
     "map_layout",
     "run_grid_slam",
 ]

@@ -4,8 +4,8 @@ A step of either filter (:mod:`jaxslam.grid.gmapping`, :mod:`jaxslam.grid.srupf`
 
 1. proposal (filter specific) and scan matching against each particle's own map,
    read through its page table (:func:`particle_reader`);
-2. log-weights ``log w += weight_gain * log p(z | x, m)`` (see
-   :func:`jaxslam.grid.types.default_params`);
+2. log-weights ``log w += gain * log p(z | x, m)`` (``params.weights``, see
+   :class:`jaxslam.grid.types.WeightParams`);
 3. the scan is integrated into every map at the corrected pose
    (:func:`jaxslam.grid.update.update_paged`: tiles allocated or copied on write);
 4. selective resampling when ``ESS < resample_threshold * N`` (Grisetti et al.
@@ -36,29 +36,28 @@ from jaxslam.core.resampling import (
     selective_resample,
 )
 from jaxslam.runtime.driver import best_particle
-from jaxslam.grid.closure import memory_length
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.matching import Climb, EllipseBound, climbs_in_turn, get_matcher, gmapping_basis, hill_climb, search_bound
 from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn, scan_log_likelihood
-from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
+from jaxslam.grid.types import ClosureState, GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
 from jaxslam.grid.update import update_paged
 
 
 def scan_angles(observation: Scan, params: GridSlamParams) -> Array:
     """Beam angles ``(B,)`` of this scan in the laser frame."""
-    return params.beam_angles + jnp.asarray(observation.angle_offset, params.beam_angles.dtype)
+    return params.sensor.beam_angles + jnp.asarray(observation.angle_offset, params.sensor.beam_angles.dtype)
 
 
 def score_model(params: GridSlamParams) -> ScoreModel:
     """The traced score settings of ``params``."""
-    return ScoreModel(params.occ_saturation, params.score_sigma, params.likelihood_floor)
+    return ScoreModel(params.map.occ_saturation, params.matcher.score_sigma, params.weights.likelihood_floor)
 
 
 def scan_score_fn(read, local_points: Array, mask: Array, params: GridSlamParams, config: GridSlamConfig):
     """The match score ``(M, 3) -> (M,)`` of poses against the map of ``read``
     (:func:`jaxslam.grid.score.make_score_fn` with the params' score model and the
     config's kernel): the sum of the beams' weighted evidence."""
-    return make_score_fn(read, local_points, mask, params.laser_offset, config.layout, score_model(params),
+    return make_score_fn(read, local_points, mask, params.sensor.laser_offset, config.layout, score_model(params),
                          config.score_kernel, config.free_check)
 
 
@@ -67,7 +66,7 @@ def scan_likelihood(read, pose: Array, local_points: Array, mask: Array, params:
     """``(log p(z | pose, map), score)`` of one pose
     (:func:`jaxslam.grid.score.scan_log_likelihood` under the same model as
     :func:`scan_score_fn`)."""
-    return scan_log_likelihood(read, pose, local_points, mask, params.laser_offset, config.layout,
+    return scan_log_likelihood(read, pose, local_points, mask, params.sensor.laser_offset, config.layout,
                                score_model(params), config.score_kernel, config.free_check)
 
 
@@ -77,10 +76,10 @@ def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: Gr
     :math:`k`; ``pose`` itself when :math:`k = 0`).
 
     The ``gaussian3`` evidence of a beam, :math:`o(c)\, e^{-d^2/\sigma^2}` at its best
-    cell, falls to a third one cell (5 cm) from a wall at ``score_sigma`` = 0.05 m: the
+    cell, falls to a third one cell (5 cm) from a wall at ``matcher.score_sigma`` = 0.05 m: the
     narrow kernel makes the match precise, but its score has little slope for a pose
     off by more than a cell or a degree or two. GMapping's own kernel,
-    :math:`e^{-d^2 / 0.05\,\mathrm{m}^2}` (``coarse_sigma`` :math:`\sigma_c` = 0.2236 m),
+    :math:`e^{-d^2 / 0.05\,\mathrm{m}^2}` (``matcher.coarse_sigma`` :math:`\sigma_c` = 0.2236 m),
     still gives 0.95 there. The coarse stage climbs :math:`k` iterations of GMapping's
     hill climb (:func:`jaxslam.grid.matching.hill_climb`, ``linear_step`` /
     ``angular_step`` moves) on the score with :math:`\sigma_c`,
@@ -91,17 +90,17 @@ def coarse_start(read, local_points: Array, mask: Array, pose: Array, params: Gr
     value is the match's score (the tracking's trust, the closure search's trigger,
     the curvature test and the weights are all the narrow kernel's). With ``bound``
     (:func:`jaxslam.grid.matching.search_bound`: for SRUPF-GM's ellipse matcher the
-    poses within ``coarse_radius`` standard deviations of the prediction) the wide
+    poses within ``matcher.coarse_radius`` standard deviations of the prediction) the wide
     climb skips every candidate outside it, as the matcher does. Unbounded, the wide
     climbs answer to no motion model and can hand the matcher a start it would never
     have reached itself (a turn of 0.51 rad that the odometry had right, matched as
-    0.16 rad). SRUPF-GM's default (:func:`jaxslam.grid.experiment.coarse_default`;
+    0.16 rad). SRUPF-GM's default (:data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`;
     the design notes, ``docs/design.md``, "The coarse stage", have the table).
     """
     if not config.coarse_iterations:
         return pose
-    model = score_model(params)._replace(sigma=params.coarse_sigma)
-    wide = make_score_fn(read, local_points, mask, params.laser_offset, config.layout, model, config.score_kernel,
+    model = score_model(params)._replace(sigma=params.matcher.coarse_sigma)
+    wide = make_score_fn(read, local_points, mask, params.sensor.laser_offset, config.layout, model, config.score_kernel,
                          config.free_check)
     moved, _, _ = hill_climb(wide, pose, gmapping_basis(params, pose.dtype), config.coarse_iterations, bound)
     return moved
@@ -112,7 +111,7 @@ def coarse_to_fine(read, local_points: Array, mask: Array, start: Array, pose_sq
                    prior_mean: Array | None = None) -> tuple[Array, Array]:
     """A keyframe's match: ``config.matcher`` from :func:`coarse_start` (whose climb
     keeps to :func:`jaxslam.grid.matching.search_bound` around ``coarse_centre`` at
-    ``coarse_radius``), ``(pose (3,), score ())``, the score a raw sum over the beams.
+    ``matcher.coarse_radius``), ``(pose (3,), score ())``, the score a raw sum over the beams.
 
     Where both are hill climbs (the ``"hill"`` and ``"ellipse"`` matchers without a
     gradient refinement), they run as two passes of one climb
@@ -120,9 +119,9 @@ def coarse_to_fine(read, local_points: Array, mask: Array, start: Array, pose_sq
     kernel once for both; the poses are the same bit for bit.
     """
     model = score_model(params)
-    score_fn = make_score_fn(read, local_points, mask, params.laser_offset, config.layout, model,
+    score_fn = make_score_fn(read, local_points, mask, params.sensor.laser_offset, config.layout, model,
                              config.score_kernel, config.free_check)
-    coarse_bound = search_bound(config.matcher, coarse_centre, pose_sqrt_cov, params, params.coarse_radius)
+    coarse_bound = search_bound(config.matcher, coarse_centre, pose_sqrt_cov, params, params.matcher.coarse_radius)
     if not (config.coarse_iterations and not config.refine_steps and config.matcher in ("hill", "ellipse")):
         begin = coarse_start(read, local_points, mask, start, params, config, coarse_bound)
         return get_matcher(config.matcher)(score_fn, begin, pose_sqrt_cov, params, config.match_iterations,
@@ -133,10 +132,10 @@ def coarse_to_fine(read, local_points: Array, mask: Array, start: Array, pose_sq
     if coarse_bound is not None:  # ellipse_match's steps: the ellipse's marginal deviations
         factor = coarse_bound.sqrt_cov
         fine_basis = jnp.diag(jnp.sqrt(jnp.sum(factor * factor, -1)))
-        fine_step = jnp.asarray(params.ellipse_step, dtype)
+        fine_step = jnp.asarray(params.matcher.ellipse_step, dtype)
 
     def score_at(poses, sigma):
-        return make_score_fn(read, local_points, mask, params.laser_offset, config.layout,
+        return make_score_fn(read, local_points, mask, params.sensor.laser_offset, config.layout,
                              model._replace(sigma=sigma), config.score_kernel, config.free_check)(poses)
 
     def prepare(i, carry):
@@ -145,12 +144,12 @@ def coarse_to_fine(read, local_points: Array, mask: Array, start: Array, pose_sq
         bound = None
         if coarse_bound is not None:
             centre = jnp.where(coarse, coarse_centre, begin if prior_mean is None else prior_mean)
-            radius = jnp.where(coarse, coarse_bound.radius, jnp.asarray(params.ellipse_radius, dtype))
+            radius = jnp.where(coarse, coarse_bound.radius, jnp.asarray(params.matcher.ellipse_radius, dtype))
             bound = EllipseBound(centre, coarse_bound.sqrt_cov, radius)
         return carry, Climb(
             jnp.asarray(True), begin, jnp.where(coarse, coarse_basis, fine_basis),
             jnp.where(coarse, config.coarse_iterations, config.match_iterations),
-            jnp.where(coarse, jnp.asarray(params.coarse_sigma, dtype), jnp.asarray(model.sigma, dtype)),
+            jnp.where(coarse, jnp.asarray(params.matcher.coarse_sigma, dtype), jnp.asarray(model.sigma, dtype)),
             jnp.where(coarse, jnp.ones((), dtype), fine_step), bound)
 
     def take(i, carry, climb, pose, score):
@@ -160,8 +159,8 @@ def coarse_to_fine(read, local_points: Array, mask: Array, start: Array, pose_sq
 
 
 def usable_range(params: GridSlamParams, config: GridSlamConfig) -> Array:
-    """``params.usable_range`` cropped to the static ``config.window_range``."""
-    return jnp.minimum(params.usable_range, jnp.asarray(config.window_range, params.usable_range.dtype))
+    """``params.sensor.usable_range`` cropped to the static ``config.window_range``."""
+    return jnp.minimum(params.sensor.usable_range, jnp.asarray(config.window_range, params.sensor.usable_range.dtype))
 
 
 def beam_weights(ranges: Array, valid: Array, score_range) -> Array:
@@ -169,13 +168,13 @@ def beam_weights(ranges: Array, valid: Array, score_range) -> Array:
 
     .. math:: w_b = m_b \min\bigl(1, (r_s / r_b)^2\bigr),
 
-    :math:`m_b` the mask of usable beams, :math:`r_s` = ``score_range``. A beam within
+    :math:`m_b` the mask of usable beams, :math:`r_s` = ``sensor.score_range``. A beam within
     :math:`r_s` counts fully; one farther counts as :math:`(r_s / r_b)^2` beams. A
     far end point moves :math:`r_b` times a heading error and lands on walls seen
     from afar, at grazing angles and by few scans, so its evidence is the least
     certain; the far field is also where a scan holds the most cells. Beyond
     :math:`r_s` the weights keep the far field's total share of the score about
-    constant instead of letting it outvote the near field. With ``score_range`` at
+    constant instead of letting it outvote the near field. With ``sensor.score_range`` at
     or above the usable range every weight is the mask (exactly 1 or 0).
     """
     far = jnp.asarray(score_range, ranges.dtype) ** 2 / jnp.maximum(ranges * ranges, jnp.finfo(ranges.dtype).tiny)
@@ -186,10 +185,10 @@ def match_geometry(observation: Scan, params: GridSlamParams, config: GridSlamCo
     """Local end points ``(M, 2)`` and weights ``(M,)`` (:func:`beam_weights`, 0 for
     unused beams) of the beams used for matching."""
     idx = config.match_beams
-    ranges = observation.ranges[idx].astype(params.beam_angles.dtype)
+    ranges = observation.ranges[idx].astype(params.sensor.beam_angles.dtype)
     valid = observation.valid[idx] & (ranges <= usable_range(params, config)) & (ranges > 0)
     safe = jnp.where(valid, ranges, 0.0)
-    return beam_points(safe, scan_angles(observation, params)[idx]), beam_weights(safe, valid, params.score_range)
+    return beam_points(safe, scan_angles(observation, params)[idx]), beam_weights(safe, valid, params.sensor.score_range)
 
 
 def particle_reader(state: GridSlamState, table: Array, config: GridSlamConfig):
@@ -206,20 +205,20 @@ def integrate_scan(maps, poses: Array, observation: Scan, params: GridSlamParams
         observation.ranges.astype(poses.dtype),
         observation.valid,
         scan_angles(observation, params).astype(poses.dtype),
-        params.laser_offset,
+        params.sensor.laser_offset,
         config.max_points,
-        params.usable_range,
+        params.sensor.usable_range,
         config.window_range,
-        params.l_free,
-        params.l_occ,
-        params.l_max,
+        params.map.l_free,
+        params.map.l_occ,
+        params.map.l_max,
     )
 
 
 def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observation: Scan, initial_pose: Array,
           start=None):
     del key  # the initial state is deterministic; the key keeps the protocol's signature
-    dtype = params.beam_angles.dtype
+    dtype = params.sensor.beam_angles.dtype
     n = config.num_particles
     pose = jnp.asarray(initial_pose, dtype)
     # The barrier keeps XLA from constant-folding the empty maps through the first
@@ -229,7 +228,7 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
     one, _, status = integrate_scan(one, pose[None], observation, params, config)
     tables = jnp.broadcast_to(one.tables, (n, one.tables.shape[1]))
     maps = resample_maps(one._replace(tables=tables), jnp.arange(n), jnp.asarray(True))
-    sqrt_cov = jnp.diag(params.initial_std.astype(dtype))
+    sqrt_cov = jnp.diag(params.srupf.initial_std.astype(dtype))
     return GridSlamState(
         poses=jnp.broadcast_to(pose, (n, 3)),
         pose_sqrt_covs=jnp.broadcast_to(sqrt_cov, (n, 3, 3)),
@@ -239,7 +238,7 @@ def _init(key: Array, params: GridSlamParams, config: GridSlamConfig, observatio
         status=status,
         motion=jnp.zeros((3,), dtype),
         since_keyframe=jnp.zeros((5,), dtype),
-        closure_memory=jnp.zeros((memory_length(config),), dtype),
+        closure=ClosureState.empty(dtype, map_bound=config.closure_map_bound),
     )
 
 
@@ -256,8 +255,8 @@ def init(
 
     ``start``: one particle's :class:`~jaxslam.grid.paged.PagedMaps` (a saved map,
     :func:`jaxslam.grid.startmap.paged_start`) that the first scan is written into, in
-    place of empty maps; every particle then shares its tiles. The pose factor starts at ``diag(params.initial_std)``. Jitted (one compilation
-    per config). If the first scan does not fit the layout, ``status`` says so and the
+    place of empty maps; every particle then shares its tiles. The pose factor starts
+    at ``diag(params.srupf.initial_std)``. Jitted (one compilation per config). If the first scan does not fit the layout, ``status`` says so and the
     caller grows the layout (:func:`jaxslam.grid.paged.grow`) and calls again.
     """
     return _init(key, params, config, observation, initial_pose, start)
@@ -277,7 +276,7 @@ def finish_step(
     config: GridSlamConfig,
 ) -> tuple[GridSlamState, GridSlamInfo]:
     """Weights, map update at ``map_poses``, selective resampling (shared by filters)."""
-    log_weights = normalize_log_weights(state.log_weights + params.weight_gain * log_likelihoods)
+    log_weights = normalize_log_weights(state.log_weights + params.weights.gain * log_likelihoods)
     cumulative = state.cumulative_log_likelihood + log_likelihoods
     # A data dependency from every read of the maps (matching, likelihoods) to the
     # map update, so that XLA orders the reads before the in-place write. (Float
@@ -287,9 +286,9 @@ def finish_step(
     maps, dropped, status = integrate_scan(state.maps, map_poses + tie, observation, params, config)
     applied = status.code == 0
     ess = effective_sample_size(log_weights)
-    increment = log_likelihood_increment(state.log_weights, params.weight_gain * log_likelihoods)
+    increment = log_likelihood_increment(state.log_weights, params.weights.gain * log_likelihoods)
     ancestors, resampled, new_log_weights = selective_resample(
-        key, log_weights, params.resample_threshold, config.resampler
+        key, log_weights, params.weights.resample_threshold, config.resampler
     )
     identity = jnp.arange(config.num_particles, dtype=ancestors.dtype)
     ancestors = jnp.where(applied, ancestors, identity)
@@ -307,7 +306,7 @@ def finish_step(
         status=status,
         motion=state.motion,
         since_keyframe=state.since_keyframe,
-        closure_memory=state.closure_memory,
+        closure=state.closure,
     )
     info = GridSlamInfo(
         poses=map_poses,

@@ -8,7 +8,7 @@ Per particle :math:`i` and keyframe :math:`t` (``GridSlamProcessor::processScan`
    (hill climbing with step halving, :func:`jaxslam.grid.matching.hill_climb_match`);
    the corrected pose :math:`x^i_t` replaces the proposal when its score exceeds
    ``min_score``. With ``config.constrain_matches`` (an option here, off in
-   :func:`jaxslam.grid.experiment.make_config`; not in GMapping) the correction
+   :data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`; not in GMapping) the correction
    keeps the matched heading but moves the position only along the directions the
    scan constrains (:func:`jaxslam.grid.tracking.constrained_shift`, as SRUPF-GM's
    corrector, where it is the default, and the tracking);
@@ -54,7 +54,7 @@ def correct_pose(
     best, _, count = keyframe_match(score_fn, read, local_points, mask, pose, pose, pose_sqrt_cov, params, config)
     log_lik_best, score_best = scan_likelihood(read, best, local_points, mask, params, config)
     log_lik_init, score_init = scan_likelihood(read, pose, local_points, mask, params, config)
-    accept = score_best / count > params.min_score
+    accept = score_best / count > params.matcher.min_score
     return (
         jnp.where(accept, best, pose),
         jnp.where(accept, score_best, score_init) / count,
@@ -94,7 +94,8 @@ def _step(
     def particle(k, table, pose, sqrt_cov):
         read = particle_reader(state, table, config)
         proposal = sample_gmapping(
-            k, pose, increment, scale * params.srr, scale * params.srt, scale * params.str_, scale * params.stt
+            k, pose, increment, scale * params.gmapping.srr, scale * params.gmapping.srt, scale * params.gmapping.str,
+            scale * params.gmapping.stt
         )
         return correct_pose(read, proposal, sqrt_cov, local_points, mask, params, config)
 

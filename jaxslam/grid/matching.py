@@ -20,7 +20,7 @@ coordinate :math:`u` that starts at 0:
   2009, Sec. 3.2, Fig. 1b): the same deterministic moves, but the step
   :math:`\delta` comes from the predicted covariance :math:`P = S S^T`
   (``B = ellipse_step * diag(sqrt(diag P))``) and candidates outside the
-  ellipse :math:`\lVert S^{-1}(x - \mu)\rVert \le` ``ellipse_radius`` are not
+  ellipse :math:`\lVert S^{-1}(x - \mu)\rVert \le` ``matcher.ellipse_radius`` are not
   considered. (Moving along the columns of :math:`S` instead couples heading and
   position in one move, and coordinate-wise hill climbing then stalls on the
   resulting ridges of the score.)
@@ -213,9 +213,9 @@ def gmapping_basis(params, dtype) -> Array:
     return jnp.diag(
         jnp.stack(
             [
-                jnp.asarray(params.linear_step, dtype),
-                jnp.asarray(params.linear_step, dtype),
-                jnp.asarray(params.angular_step, dtype),
+                jnp.asarray(params.matcher.linear_step, dtype),
+                jnp.asarray(params.matcher.linear_step, dtype),
+                jnp.asarray(params.matcher.angular_step, dtype),
             ]
         )
     )
@@ -224,7 +224,7 @@ def gmapping_basis(params, dtype) -> Array:
 def ellipse_factor(pose_sqrt_cov: Array, params) -> Array:
     """``S`` with a small floor so that a collapsed covariance still searches a little."""
     dtype = pose_sqrt_cov.dtype
-    floor = jnp.broadcast_to(jnp.asarray(params.ellipse_floor, dtype), (3,))
+    floor = jnp.broadcast_to(jnp.asarray(params.matcher.ellipse_floor, dtype), (3,))
     return tria(jnp.concatenate([pose_sqrt_cov, jnp.diag(floor)], -1))
 
 
@@ -241,7 +241,7 @@ def hill_climb_match(
     basis = gmapping_basis(params, pose.dtype)
     best, score, _ = hill_climb(score_fn, pose, basis, iterations)
     if refine_steps:
-        best, score = gradient_refine(score_fn, best, basis, refine_steps, params.learning_rate)
+        best, score = gradient_refine(score_fn, best, basis, refine_steps, params.matcher.learning_rate)
     return best, score
 
 
@@ -253,15 +253,15 @@ def ellipse_match(
 
     The steps along ``x``, ``y`` and ``theta`` are ``ellipse_step`` marginal standard
     deviations of ``S`` (GMapping uses fixed lstep/astep), and a candidate must lie
-    within ``ellipse_radius`` (Mahalanobis) of ``prior_mean`` (the predicted mean;
+    within ``matcher.ellipse_radius`` (Mahalanobis) of ``prior_mean`` (the predicted mean;
     default ``pose``), so a search started from a sample of the prediction covers
     the same region as one started from its mean.
     """
     bound = search_bound("ellipse", pose if prior_mean is None else prior_mean, pose_sqrt_cov, params)
     basis = jnp.diag(jnp.sqrt(jnp.sum(bound.sqrt_cov * bound.sqrt_cov, -1)))
-    best, score, _ = hill_climb(score_fn, pose, basis, iterations, bound, params.ellipse_step)
+    best, score, _ = hill_climb(score_fn, pose, basis, iterations, bound, params.matcher.ellipse_step)
     if refine_steps:
-        best, score = gradient_refine(score_fn, best, basis, refine_steps, params.learning_rate)
+        best, score = gradient_refine(score_fn, best, basis, refine_steps, params.matcher.learning_rate)
     return best, score
 
 
@@ -270,7 +270,7 @@ def gradient_match(
 ):
     """Gradient ascent only (``iterations + refine_steps`` adam steps) in the ellipse basis."""
     basis = ellipse_basis(pose_sqrt_cov, params)
-    return gradient_refine(score_fn, pose, basis, iterations + refine_steps, params.learning_rate)
+    return gradient_refine(score_fn, pose, basis, iterations + refine_steps, params.matcher.learning_rate)
 
 
 MATCHERS = {
@@ -284,17 +284,17 @@ def search_bound(
     matcher: str | Callable, centre: Array, pose_sqrt_cov: Array, params, radius=None
 ) -> EllipseBound | None:
     r"""The region a matcher may search: for ``"ellipse"`` the poses within
-    ``radius`` (default ``ellipse_radius``) standard deviations of ``centre`` under
+    ``radius`` (default ``matcher.ellipse_radius``) standard deviations of ``centre`` under
     the prediction's covariance (with the floor of :func:`ellipse_factor`),
     :math:`\|S^{-1}(x - \mu)\| \le r`; ``None`` (anywhere) for the others, whose
     climbs are GMapping's unbounded ones. The coarse stage that climbs before the
     matcher (:func:`jaxslam.grid.filter.coarse_start`) takes the same ellipse with
-    ``params.coarse_radius``.
+    ``params.matcher.coarse_radius``.
     """
     if matcher not in ("ellipse", ellipse_match):  # the name or the function (get_matcher takes both)
         return None
     factor = ellipse_factor(pose_sqrt_cov, params)
-    r = params.ellipse_radius if radius is None else radius
+    r = params.matcher.ellipse_radius if radius is None else radius
     return EllipseBound(centre, factor, jnp.asarray(r, centre.dtype))
 
 

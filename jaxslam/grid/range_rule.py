@@ -1,7 +1,7 @@
 r"""How far to use the laser: the usable range chosen from the log's own readings.
 
 Indoors almost every reading ends within 20 m (a percent or less beyond), and there
-the default :func:`jaxslam.grid.types.default_params` range of 20 m for both the map
+the default range of 20 m (:class:`jaxslam.grid.types.SensorParams`) for both the map
 and the matcher is the filter's design point. Outdoors, or in large halls, a fifth or
 more of the readings lie beyond it: cropped at 20 m, a scan keeps a sparse near field that no longer pins
 the pose, and the map bends where GMapping, with its 80 m, keeps it straight.
@@ -16,7 +16,7 @@ The rule, with :math:`f` the fraction of valid readings beyond ``NEAR_RANGE``:
 
 Why not 80 m everywhere: a log with few far readings gains nothing from them and
 loses to chance; on indoor logs the far field, at full weight or at a discount
-(``score_range`` 20 m, :func:`jaxslam.grid.filter.beam_weights`), makes the filter less robust
+(``sensor.score_range`` 20 m, :func:`jaxslam.grid.filter.beam_weights`), makes the filter less robust
 and the loop slower. Why no discount where the far field is used: where a fifth of
 the readings are far, they are what pins the pose, at full weight as in GMapping.
 ``benchmarks/grid_robustness.py`` (``--variant``) compares both. Why 10 %: logs fall
@@ -25,8 +25,8 @@ above a tenth; the threshold sits in the gap between them, not on any one log.
 
 The decision is the log's, made once before the run from all its readings, like the
 "no return" detection of :func:`jaxslam.datasets.no_return.detect_no_return`; it is
-reported in ``summary.json`` (``range_rule``). An explicit ``usable_range`` or
-``score_range`` (``--set``) turns it off. The streaming filter
+reported in ``summary.json`` (``range_rule``). An explicit ``sensor.usable_range`` or
+``sensor.score_range`` (``--set``) turns it off. The streaming filter
 (:mod:`jaxslam.grid.stream`), which sees one scan at a time, cannot measure the
 fraction before it starts: it keeps the 20 m defaults unless it is given the ranges.
 """
@@ -81,15 +81,15 @@ def choose_range(ranges: np.ndarray, valid: np.ndarray, max_range: float | None 
 def apply_range_rule(overrides: dict[str, Any], log) -> tuple[dict[str, Any], dict[str, Any]]:
     """``(overrides, record)``: parameter overrides with the rule's ranges added for
     ``log`` (a :class:`jaxslam.datasets.carmen.CarmenLog`, all its scans), unless they
-    set ``usable_range`` or ``score_range`` themselves. ``record`` is what
+    set ``sensor.usable_range`` or ``sensor.score_range`` (or the whole ``sensor``) themselves. ``record`` is what
     ``summary.json`` reports as ``range_rule``: ``{"source": "params"}``, or
     ``{"source": "log", **choose_range(...)}``. Every grid entry point that builds
     parameters for a log (the run, the calibration) takes its ranges from here."""
     overrides = dict(overrides)
-    if "usable_range" in overrides or "score_range" in overrides:
+    if {"sensor", "sensor.usable_range", "sensor.score_range"} & set(overrides):
         return overrides, {"source": "params"}
     record = {"source": "log", **choose_range(log.ranges, log.valid, getattr(log, "max_range", None))}
-    overrides["usable_range"], overrides["score_range"] = record["usable_range"], record["score_range"]
+    overrides["sensor.usable_range"], overrides["sensor.score_range"] = record["usable_range"], record["score_range"]
     return overrides, record
 
 

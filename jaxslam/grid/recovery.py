@@ -23,7 +23,7 @@ logs of wheeled robots). An increment that slips more than :data:`RECOVER_SLIP`
 from the wheels' motion (:func:`jumped`; the share keeps out long steps whose turn was
 not one arc, such as steps of 2-3 m turning 20-30 deg, whose slip reaches 0.2-0.3 m).
 
-**The rule.** Where this scan's increment jumped and the tracking's match :math:`(x^*, s)` is refused (:math:`s/n \le` ``track_min_score``), the
+**The rule.** Where this scan's increment jumped and the tracking's match :math:`(x^*, s)` is refused (:math:`s/n \le` ``tracking.min_score``), the
 loop-closure search's coarse stage searches around the guess :math:`\hat x` at a small
 radius (:func:`jaxslam.grid.closure.coarse_candidates`, ``config.recover_radius`` m on
 each axis, ``config.closure_turn`` either way, then GMapping's hill climb from the best
@@ -44,15 +44,15 @@ Why the slip test: a refused match is mostly a stretch with little to match, whe
 search of a metre and a half finds a pose along a corridor that scores well and is
 not the place; the test keeps the search to the scans whose odometry cannot be right,
 and the share of the length keeps it off long real steps. Why wider proposals after a
-refused match (``track_refused_noise_scale``, 2.5 times ``track_noise_scale``,
+refused match (``tracking.refused_noise_scale``, 2.5 times ``tracking.noise_scale``,
 :func:`jaxslam.grid.tracking.keyframe_noise_scale`): the recovery alone puts the scan
 back, but sparse revisits, where every match scores a few percent of the beams, still
 lose particles to the climbs. Together they are SRUPF-GM's default
-(:func:`jaxslam.grid.experiment.recover_default`); the table with and without both is
+(:data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`); the table with and without both is
 in the design notes (``docs/design.md``, "The recovery, and wider proposals after a
 refused match"), reproduced by ``benchmarks/grid_robustness.py``.
 
-Unlike a loop closure it needs no confirmation and no high score (``closure_min_score``
+Unlike a loop closure it needs no confirmation and no high score (``closure.min_score``
 0.35, which right matches in sparse scenes do not reach): its reach is one increment's jump,
 not the drift of a loop.
 """
@@ -107,14 +107,14 @@ def recovery_phases(read, local_points: Array, weights: Array, guess: Array, cou
     found a trusted, clearly better pose, and ``origin``: the pose the constrained
     correction is taken from (``guess``, or the recovered pose)."""
     dtype = guess.dtype
-    bar = jnp.asarray(params.track_min_score, dtype)
+    bar = jnp.asarray(params.tracking.min_score, dtype)
     lanes = refine_count(config)
 
     def open_prepare(lane, carry):
         refused = (carry["score"] / count <= bar) & jumped(increment.astype(dtype))
         candidates = jax.lax.cond(
             refused,
-            lambda: coarse_candidates(read, config.layout, local_points, weights, params.laser_offset, guess,
+            lambda: coarse_candidates(read, config.layout, local_points, weights, params.sensor.laser_offset, guess,
                                       params, config, radius=config.recover_radius),
             lambda: jnp.zeros((lanes, 3), dtype))
         carry = {**carry, "tracked": carry["matched"], "tracked_score": carry["score"], "searching": refused,

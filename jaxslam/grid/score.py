@@ -21,7 +21,7 @@ almost everywhere (for the gradient refinement).
 :math:`m_b` masks the beams used (valid, within the usable range, in the matching
 subset). The filters pass weights :math:`w_b \in [0, 1]` in its place
 (:func:`jaxslam.grid.filter.beam_weights`: 0 for unused beams, less than 1 for beams
-beyond ``score_range``); a boolean mask is the special case of weights 0 and 1.
+beyond ``sensor.score_range``); a boolean mask is the special case of weights 0 and 1.
 
 ``kernel="gaussian3"`` replaces the bilinear evidence by GMapping's neighbourhood
 form, the best :math:`o(c) \exp(-d^2/\sigma^2)` over the 3 x 3 cells around the end

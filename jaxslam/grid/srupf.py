@@ -29,7 +29,7 @@ through ``f``; mean :math:`\mu` (6), :math:`S = \mathrm{qr}[\sqrt{W^c_{1..2n}}
 
 The paper's eq. (12) has no measurement noise; then (16) removes the whole spread
 (for :math:`\nu = \mu`, :math:`K S_\nu = S`) and a resampled particle's copies would
-never separate again. ``match_noise`` (:math:`\sqrt R`, the spread of the
+never separate again. ``srupf.match_noise`` (:math:`\sqrt R`, the spread of the
 corrector's pose) restores a proper Kalman update, :math:`P^+ \approx P (P + R)^{-1}
 R \succ 0`; ``match_noise = 0`` gives the literal equations, where
 :func:`jaxslam.core.sqrt.chol_update` clamps the lost pivots (``Info.pd_ok`` is False).
@@ -117,7 +117,7 @@ def best_sigma_point(prediction: Prediction, score) -> Array:
 
 
 def ut_params(params: GridSlamParams) -> UTParams:
-    return UTParams(params.ut_alpha, params.ut_beta, params.ut_kappa)
+    return params.unscented
 
 
 def predict(
@@ -127,11 +127,11 @@ def predict(
     motion-proportional part of Q (tracked motion, :class:`jaxslam.grid.types.Odometry`)."""
     noise_sqrt = motion_noise_sqrt(
         control,
-        params.q_linear,
-        params.q_angular,
-        noise_scale * params.q_linear_per_m,
-        noise_scale * params.q_angular_per_rad,
-        noise_scale * params.q_angular_per_m,
+        params.srupf.q_linear,
+        params.srupf.q_angular,
+        noise_scale * params.srupf.q_linear_per_m,
+        noise_scale * params.srupf.q_angular_per_rad,
+        noise_scale * params.srupf.q_angular_per_m,
     )
     return sqrt_unscented_predict(pose, pose_sqrt_cov, control, noise_sqrt, ut_params(params))
 
@@ -170,13 +170,13 @@ def particle_update(
     if config.correction == "pc":
         best, best_score, _ = keyframe_match(score_fn, read, local_points, mask, start, prediction.mean,
                                              prediction.sqrt_cov, params, config, prior_mean=prediction.mean)
-        accept = best_score / count > params.min_score
+        accept = best_score / count > params.matcher.min_score
         nu = jnp.where(accept, best, start)
     elif config.correction == "npc":
         nu = best_sigma_point(prediction, score_fn)
     else:
         raise ValueError(f"correction must be 'pc' or 'npc', got {config.correction!r}")
-    update = sqrt_measurement_update(prediction, nu, jnp.diag(params.match_noise.astype(dtype)))
+    update = sqrt_measurement_update(prediction, nu, jnp.diag(params.srupf.match_noise.astype(dtype)))
     log_lik, score = scan_likelihood(read, nu, local_points, mask, params, config)
     if config.sampling == "posterior":
         next_pose = sample_pose(key_post, nu, update.sqrt_cov)

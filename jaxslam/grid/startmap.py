@@ -6,8 +6,8 @@ r"""Mapping that continues: a saved map as every particle's starting map.
 corrects and extends it, and the map it writes covers the saved run's area and the
 new log's.
 
-*Cells.* The paged maps hold ``int8`` steps of ``params.log_odds_unit`` natural
-log-odds, clamped at ``±params.l_max`` steps (:mod:`jaxslam.grid.map`). A jaxslam
+*Cells.* The paged maps hold ``int8`` steps of ``params.map.log_odds_unit`` natural
+log-odds, clamped at ``±params.map.l_max`` steps (:mod:`jaxslam.grid.map`). A jaxslam
 ``map.npz`` made with the same unit gives its cells back as they are (clamped to
 ``±l_max`` if the run's clamp is lower); one with another unit, or stored as floats,
 is rounded to the nearest step. A ROS ``map_server`` map has no log-odds: an occupied

@@ -47,12 +47,13 @@ from jaxslam.runtime.compiler import jit
 from jaxslam.datasets.geometry import se2_between
 from jaxslam.datasets.rosbag import interpolate_odometry
 from jaxslam.runtime.driver import step_keys
-from jaxslam.grid import driver, gmapping, srupf
+from jaxslam.grid import driver
+from jaxslam.grid.algorithms import grid_algorithm
 from jaxslam.grid.undone_closures import judge_at_end, reported_undo
-from jaxslam.grid.experiment import best_trajectory, keyframe_rule, make_config, map_layout
+from jaxslam.grid.experiment import KEYFRAME_PATHS, best_trajectory, keyframe_rule, map_layout
 from jaxslam.grid.paged import stitch
 from jaxslam.grid.tracking import scan_trajectory
-from jaxslam.grid.types import GridSlamParams, Odometry, Scan, default_params
+from jaxslam.grid.types import GridSlamParams, Odometry, Scan
 from jaxslam.grid.rays import required_points
 
 __all__ = ["StreamingGridSlam", "step_runner"]
@@ -85,7 +86,8 @@ class StreamingGridSlam:
         algorithm: ``"srupf-gm"``, ``"srupf-gm-npc"`` or ``"gmapping"``.
         particles: number of particles.
         seed: PRNG seed (the batch run's).
-        params: overrides of :func:`jaxslam.grid.types.default_params`.
+        params: values over the algorithm's params, by path (as for
+            :func:`jaxslam.grid.experiment.run_grid_slam`).
         config: overrides of the static :class:`~jaxslam.grid.types.GridSlamConfig` fields.
         linear_update, angular_update, temporal_update: keyframe rule on the tracked
             motion (m, rad, s; GMapping's linearUpdate, angularUpdate,
@@ -126,18 +128,18 @@ class StreamingGridSlam:
         self.rule = keyframe_rule(linear_update, angular_update, temporal_update, algorithm)
         self.resolution = float(resolution)
         self.margin = float(margin)
+        self.entry = grid_algorithm(algorithm)
         overrides = dict(params or {})
-        for name, value in zip(("linear_update", "angular_update", "temporal_update"), self.rule, strict=True):
-            overrides.setdefault(name, value)
-        self.params: GridSlamParams = default_params(
-            np.asarray(beam_angles), np.asarray(laser_offset, np.float64), num_particles=particles, dtype=dtype,
-            algorithm=algorithm, **overrides)
+        if "keyframes" not in overrides:
+            for path, value in zip(KEYFRAME_PATHS, self.rule, strict=True):
+                overrides.setdefault(path, value)
+        self.params: GridSlamParams = self.entry.make_params(
+            np.asarray(beam_angles), np.asarray(laser_offset, np.float64), dtype=dtype, values=overrides)
         self.num_beams = int(np.shape(beam_angles)[0])
-        self.usable = float(self.params.usable_range)
+        self.usable = float(self.params.sensor.usable_range)
         self._config_overrides = dict(config or {})
         self.window_range = float(self._config_overrides.pop("window_range", max(self.usable, 1.0)))
         self.max_points = max_points
-        self.module = gmapping if algorithm == "gmapping" else srupf
         self.key = jax.random.PRNGKey(seed)
         self._keys = None
         self.config = None
@@ -270,8 +272,8 @@ class StreamingGridSlam:
             self.max_points = _budget(2 * need, self._worst_case())
         layout = map_layout(SimpleNamespace(odom_poses=odom[None]), np.array([0]), self.resolution, self.margin,
                             self.particles, self.window_range)
-        self.config = make_config(self.algorithm, self.particles, layout, self.num_beams, self.max_points,
-                                  window_range=self.window_range, **self._config_overrides)
+        self.config = self.entry.make_config(self.particles, layout, self.num_beams, self.max_points,
+                                             window_range=self.window_range, **self._config_overrides)
         self.state, self.config = driver.init_state(self.key, self.params, self.config, scan,
                                                     jnp.asarray(odom, self.dtype), self.stats)
         self.configs_used = {self.config}
@@ -288,7 +290,7 @@ class StreamingGridSlam:
         step = len(self._flags)
         key = self._step_keys(step)
         while True:
-            runner = step_runner(self.module.step, self.config)
+            runner = step_runner(self.entry.step, self.config)
             self.configs_used.add(self.config)
             # The runner donates its carry: keep what it returns.
             (self.state, self.params), ys = runner((self.state, self.params), key, control, scan)
@@ -332,7 +334,7 @@ class StreamingGridSlam:
         keep it)."""
         motions = np.stack(self._motions) if self._motions else np.zeros((0, 3))
         undos = np.stack(self._undos) if self._undos else np.zeros((0, 4))
-        end = None if self.state is None else judge_at_end(np.asarray(self.state.closure_memory), self.params)
+        end = None if self.state is None else judge_at_end(jax.device_get(self.state.closure), self.params)
         return scan_trajectory(self.odom_poses[0], np.asarray(self._flags, bool), self.keyframe_poses()[1:],
                                motions, reported_undo(undos, end))[1]
 
@@ -346,7 +348,7 @@ class StreamingGridSlam:
         best = self.best_index()
         maps = self.state.maps
         cells, origin = stitch(maps.pool, np.asarray(maps.tables)[best], maps.corner, self.config.layout)
-        return cells.astype(np.float32) * float(self.params.log_odds_unit), self.config.layout.resolution, origin
+        return cells.astype(np.float32) * float(self.params.map.log_odds_unit), self.config.layout.resolution, origin
 
     def step_versions(self) -> int:
         """How many static configurations the step ran under (each one compilation):

@@ -30,8 +30,8 @@ For scan :math:`t` with the odometry increment :math:`u_t` since scan :math:`t-1
        \tau \mathrel{+}= \Delta t,\ k \mathrel{+}= 1
 
 (:math:`n` the matched beams). The scan is a keyframe when
-:math:`d \ge` ``linear_update`` or :math:`r \ge` ``angular_update`` or
-(``temporal_update`` :math:`\ge 0` and :math:`\tau >` ``temporal_update``):
+:math:`d \ge` ``keyframes.linear_update`` or :math:`r \ge` ``keyframes.angular_update`` or
+(``keyframes.temporal_update`` :math:`\ge 0` and :math:`\tau >` ``keyframes.temporal_update``):
 GMapping's rule (:func:`jaxslam.datasets.keyframes.select_keyframes`) on the
 *tracked* motion instead of the odometry. A keyframe runs the filter's own step with
 the control :math:`(m_t, k)`, so every particle's proposal is centred on the
@@ -47,7 +47,7 @@ climbing, already beats the converged match: starting every match from the best 
 the three guesses instead lets a turned start that happens to score better than the
 plain guess climb to a worse optimum than the plain match would have.
 
-A match that scores under ``closure_trigger`` may be a place mapped long ago, met
+A match that scores under ``closure.trigger`` may be a place mapped long ago, met
 again beyond the hill climb's reach (after a long loop the guess can be metres and
 degrees off the old map): :mod:`jaxslam.grid.closure` then searches wide around it and
 takes the best pose it finds where that scores clearly better (its module docstring
@@ -60,14 +60,14 @@ jumping. Before that, with ``config.recover_radius`` (SRUPF-GM's default; 0: off
 refused match is searched again around the guess by :mod:`jaxslam.grid.recovery`, for
 an odometry that jumped (its module docstring has the rule); where that finds a
 trusted, clearly better pose, it is taken. Untrusted is a score under
-``track_min_score`` (a featureless or changed scene, a scan that does not overlap the
+``tracking.min_score`` (a featureless or changed scene, a scan that does not overlap the
 map, a map of a single scan). The score is the mean occupancy at the beam end points,
 and a wall seen once is half occupied, so where the scans are far apart (a metre
 apart) even a right match scores 0.1-0.3: the threshold (0.1) sits below that, or
 the tracking would refuse most scans of such a log and the filter would follow its
 odometry's drift. A trusted match corrects the heading, and the position only along
 the directions where the score is curved (:func:`constrained_shift`, eigenvalues of
-the score's Hessian at the match at least ``track_min_curvature``): in a corridor the
+the score's Hessian at the match at least ``tracking.min_curvature``): in a corridor the
 score is flat along its axis, and a hill climb there slides by up to its whole reach
 (``match_iterations`` steps of lstep) on map noise, so along that axis the odometry
 is kept. SRUPF-GM's keyframe correction moves the position only along constrained
@@ -77,12 +77,12 @@ heading is not bounded: a missed turn is the case tracking is for. With
 are GMapping's own (odometry) keyframes.
 
 With tracking the keyframe control is laser-corrected motion, so the proposals spread
-only ``track_noise_scale`` = 0.2 of the odometry model's motion noise
+only ``tracking.noise_scale`` = 0.2 of the odometry model's motion noise
 (:func:`tracked_noise_scale`): at a metre per scan GMapping's 0.2 rad/m heading noise
 scatters particles beyond their hill climbs, and a lost particle scores well against
-its own map. A match counts from any score (``min_score`` 0, GMapping's
+its own map. A match counts from any score (``matcher.min_score`` 0, GMapping's
 ``minimumScore``). After a refused match SRUPF-GM's proposals are wider,
-``track_refused_noise_scale`` (:func:`keyframe_noise_scale`). What tracking changes
+``tracking.refused_noise_scale`` (:func:`keyframe_noise_scale`). What tracking changes
 and costs on real logs: the documentation's design notes (``docs/design.md``,
 "Per-scan tracking"), reproduced by ``benchmarks/grid_robustness.py``.
 
@@ -119,9 +119,10 @@ from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Od
 
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
-    conflict (), memory (MEMORY,), undo (4,))`` (``closed``: the loop-closure search's pose
+    conflict (), memory, undo (4,))`` (``closed``: the loop-closure search's pose
     replaced the local match, or a closure was undone; ``conflict``: the share of its beams
-    ending in known free space; ``memory``: the state's ``closure_memory`` after this scan;
+    ending in known free space; ``memory``: the state's
+    :class:`~jaxslam.grid.types.ClosureState` after this scan;
     ``undo``: what an undo took back, zeros otherwise; see :mod:`jaxslam.grid.closure`)."""
     dtype = state.poses.dtype
     best = best_particle(state)
@@ -129,7 +130,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     predicted = se2.compose(state.motion, increment.astype(dtype))
     if not config.tracking:
         return (predicted, jnp.zeros((), dtype), jnp.asarray(False), jnp.asarray(False), jnp.zeros((), dtype),
-                state.closure_memory, jnp.zeros((4,), dtype))
+                state.closure, jnp.zeros((4,), dtype))
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
@@ -137,21 +138,21 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     model = score_model(params)
 
     def score_at(poses, sigma):
-        return make_score_fn(read, local_points, mask, params.laser_offset, config.layout,
+        return make_score_fn(read, local_points, mask, params.sensor.laser_offset, config.layout,
                              model._replace(sigma=sigma), config.score_kernel, config.free_check)(poses)
 
     # A turn the odometry missed (a doorway turn: up to 10 deg per scan) can lie beyond
     # the hill climb's reach. If the guess turned by +-track_turn already scores above
     # the converged match, that match is stuck: climb again from the better turned start.
-    turns = jnp.asarray([1.0, -1.0], dtype) * jnp.asarray(params.track_turn, dtype)
+    turns = jnp.asarray([1.0, -1.0], dtype) * jnp.asarray(params.tracking.turn, dtype)
     turned = jnp.broadcast_to(guess, (2, 3)).at[:, 2].add(turns)
     turned = turned.at[:, 2].set(se2.wrap_angle(turned[:, 2]))
     turned_scores = score_fn(turned)
     retry = turned[jnp.argmax(turned_scores)]
     count = jnp.maximum(jnp.sum(mask), 1).astype(dtype)
-    memory = state.closure_memory
+    memory = state.closure
     if config.closure:
-        memory = memory.at[4].add(jnp.hypot(increment[0], increment[1]).astype(dtype))
+        memory = memory._replace(travelled=memory.travelled + jnp.hypot(increment[0], increment[1]).astype(dtype))
     lanes = refine_count(config)
     carry = {"start": guess, "matched": guess, "score": jnp.full((), -jnp.inf, dtype), "origin": guess,
              "searching": jnp.asarray(False), "candidates": jnp.zeros((lanes, 3), dtype),
@@ -162,7 +163,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     if config.recover_radius > 0:  # an odometry glitch: a wide match where this one is refused
         phases += recovery_phases(read, local_points, mask, guess, count, increment, params, config)
     if config.closure:
-        phases += closure_phases(read, config.layout, local_points, mask, params.laser_offset, count, memory,
+        phases += closure_phases(read, config.layout, local_points, mask, params.sensor.laser_offset, count, memory,
                                  params, config)
     carry = run_phases(score_at, phases, carry, params, config)
     matched, score, origin = carry["matched"], carry["score"], carry["origin"]
@@ -175,7 +176,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
         taken, closed = closed, closed | undone
     score = score / count
     pose = constrained_pose(score_fn, matched, origin, score * count, count, params)
-    accepted = score > params.track_min_score
+    accepted = score > params.tracking.min_score
     if config.closure:  # an undone closure is taken back whatever the match says
         pose = jnp.where(undone, matched, pose)
         accepted = accepted | undone
@@ -219,7 +220,7 @@ def keyframe_match(score_fn, read, local_points: Array, mask: Array, start: Arra
                    sqrt_cov: Array, params: GridSlamParams, config: GridSlamConfig,
                    prior_mean: Array | None = None) -> tuple[Array, Array, Array]:
     """The keyframe corrector of both filters for one particle: the coarse stage
-    (within ``coarse_radius`` of ``center`` for a bounded matcher) and the config's
+    (within ``matcher.coarse_radius`` of ``center`` for a bounded matcher) and the config's
     matcher from there (:func:`jaxslam.grid.filter.coarse_to_fine`), and with
     ``config.constrain_matches`` :func:`constrained_pose` from ``start``.
 
@@ -256,11 +257,11 @@ def constrained_shift(score_fn, matched: Array, guess: Array, score: Array, coun
 
     is the information of the match about the position (per m^2, score as a fraction
     of the beams). Along an eigenvector of :math:`A` whose eigenvalue is under
-    ``track_min_curvature`` the score is flat (a corridor along its axis, a single
+    ``tracking.min_curvature`` the score is flat (a corridor along its axis, a single
     wall), and the correction along it is dropped: the odometry keeps that direction.
     """
     dtype = matched.dtype
-    d = jnp.asarray(params.linear_step, dtype)
+    d = jnp.asarray(params.matcher.linear_step, dtype)
     offsets = jnp.array([[1, 0], [-1, 0], [0, 1], [0, -1], [1, 1], [1, -1], [-1, 1], [-1, -1]], dtype) * d
     poses = jnp.concatenate([matched[None, :2] + offsets, jnp.broadcast_to(matched[2:], (8, 1))], -1)
     around = score_fn(poses)  # raw scores (sums over the beams), like ``score``
@@ -271,13 +272,13 @@ def constrained_shift(score_fn, matched: Array, guess: Array, score: Array, coun
     values, vectors = jnp.linalg.eigh(information)
     correction = matched[:2] - guess[:2]
     along = vectors.T @ correction
-    keep = values >= params.track_min_curvature
+    keep = values >= params.tracking.min_curvature
     return vectors @ jnp.where(keep, along, 0.0)
 
 
 def tracked_noise_scale(params: GridSlamParams, config: GridSlamConfig) -> Array:
     r"""The factor on the proposal's motion noise at a keyframe of the per-scan step
-    (:class:`jaxslam.grid.types.Odometry` ``noise_scale``): ``track_noise_scale``
+    (:class:`jaxslam.grid.types.Odometry` ``noise_scale``): ``tracking.noise_scale``
     (:math:`\kappa`) with tracking, 1 without (GMapping's odometry keyframes keep
     GMapping's noise).
 
@@ -296,16 +297,16 @@ def tracked_noise_scale(params: GridSlamParams, config: GridSlamConfig) -> Array
     (``docs/design.md``, "Per-scan tracking").
     """
     if not config.tracking:
-        return jnp.ones((), params.track_noise_scale.dtype)
-    return params.track_noise_scale
+        return jnp.ones((), params.tracking.noise_scale.dtype)
+    return params.tracking.noise_scale
 
 
 def keyframe_noise_scale(params: GridSlamParams, config: GridSlamConfig, refused: Array) -> Array:
     r"""The motion-noise scale of a keyframe's proposals, given the number of tracking
     matches refused since the previous keyframe: :math:`\kappa`
-    (:func:`tracked_noise_scale`), or ``track_refused_noise_scale`` where at least one
+    (:func:`tracked_noise_scale`), or ``tracking.refused_noise_scale`` where at least one
     was refused and that parameter is not negative (negative: :math:`\kappa`
-    everywhere; :func:`jaxslam.grid.types.refused_noise_default`: 0.5 for SRUPF-GM).
+    everywhere; 0.5 for SRUPF-GM, :data:`jaxslam.grid.algorithms.GRID_ALGORITHMS`).
 
     A trusted match makes the keyframe's control a laser measurement; a refused one
     leaves the odometry's increment in it, with the odometry's error, and
@@ -323,16 +324,16 @@ def keyframe_noise_scale(params: GridSlamParams, config: GridSlamConfig, refused
     kappa = tracked_noise_scale(params, config)
     if not config.tracking:
         return kappa
-    wide = (refused > 0) & (params.track_refused_noise_scale >= 0)
-    return jnp.where(wide, params.track_refused_noise_scale, kappa)
+    wide = (refused > 0) & (params.tracking.refused_noise_scale >= 0)
+    return jnp.where(wide, params.tracking.refused_noise_scale, kappa)
 
 
 def is_keyframe(since: Array, params: GridSlamParams) -> Array:
     """GMapping's rule on ``since = (distance, rotation, time, scans, refused)``."""
-    temporal = params.temporal_update
+    temporal = params.keyframes.temporal_update
     return (
-        (since[0] >= params.linear_update)
-        | (since[1] >= params.angular_update)
+        (since[0] >= params.keyframes.linear_update)
+        | (since[1] >= params.keyframes.angular_update)
         | ((temporal >= 0) & (since[2] > temporal))
     )
 
@@ -361,13 +362,13 @@ def per_scan(keyframe_step):
             new = new._replace(
                 motion=jnp.where(applied, jnp.zeros_like(motion), state.motion),
                 since_keyframe=jnp.where(applied, jnp.zeros_like(since), state.since_keyframe),
-                closure_memory=jnp.where(applied, memory, state.closure_memory),
+                closure=jax.tree_util.tree_map(lambda a, b: jnp.where(applied, a, b), memory, state.closure),
             )
             return new, info._replace(track_score=score, track_accepted=accepted, track_closed=closed,
                                       track_conflict=conflict, track_undo=undo)
 
         def between(key, state):
-            state = state._replace(motion=motion, since_keyframe=since, closure_memory=memory)
+            state = state._replace(motion=motion, since_keyframe=since, closure=memory)
             return state, empty_info(state, config)._replace(track_score=score, track_accepted=accepted,
                                                              track_closed=closed, track_conflict=conflict,
                                                              track_undo=undo)

@@ -1,7 +1,7 @@
 r"""The path a run reports after the loop-closure watch undid closures (host, NumPy).
 
 :func:`jaxslam.grid.closure.closure_phases` watches every closure it takes over the next
-``closure_watch`` m of odometry and undoes one whose scans keep ending in space the old
+``closure.watch`` m of odometry and undoes one whose scans keep ending in space the old
 map has seen through. On the device the undo only moves the pose back from the scan
 that decides it (``Info.track_undo``); the scans tracked in the closure's frame before
 that keep their poses. This module is what the reports do with those rows on the host:
@@ -43,35 +43,34 @@ def put_back(poses: np.ndarray, scans: np.ndarray, undo: np.ndarray) -> np.ndarr
     return _move_windows(poses, scans, undo, inverse=False)
 
 
-def judge_at_end(memory: np.ndarray, params) -> np.ndarray:
+def judge_at_end(memory, params) -> np.ndarray:
     r"""Host: the closure still watched when the run ends, judged on the scans it had.
 
-    The watch of :func:`jaxslam.grid.closure.closure_phases` runs over ``closure_watch`` m of
+    The watch of :func:`jaxslam.grid.closure.closure_phases` runs over ``closure.watch`` m of
     odometry; a log that ends sooner leaves its last closure unjudged. The path reported
-    judges it on the :math:`n` scans watched (``memory[10]``, after the closure's own
+    judges it on the :math:`n` scans watched (``memory.conflict_count``, after the closure's own
     scan), whose shares of beams ending in known free space sum to :math:`\Sigma`
-    (``memory[9]``): it is undone where
+    (``memory.conflict_sum``): it is undone where
 
     .. math:: n \ge 2, \qquad \Sigma > u_{end}\, n
 
-    (``closure_undo_end``, 1: never). The bar is above ``closure_undo`` because fewer
+    (``closure.undo_end``, 1: never). The bar is above ``closure.undo`` because fewer
     scans are averaged: over a few watched scans the share of a right closure
-    often exceeds ``closure_undo`` by chance, and rarely 0.2, while most closures that
+    often exceeds ``closure.undo`` by chance, and rarely 0.2, while most closures that
     a full watch undoes exceed it.
 
     Args:
-        memory: ``(MEMORY,)`` the final state's ``closure_memory``.
+        memory: the final state's :class:`~jaxslam.grid.types.ClosureState` (host values).
         params: the run's :class:`~jaxslam.grid.types.GridSlamParams` (host values).
 
     Returns:
         ``(4,)`` the row :func:`take_back` reads after the last scan's: ``[n + 1, A]``
         (the closure's scan and the ``n`` watched ones, ``A`` the correction the
-        tracking applied, ``memory[5:8]``), or zeros.
+        tracking applied, ``memory.applied``), or zeros.
     """
-    memory = np.asarray(memory, np.float64)
-    count, total = memory[10], memory[9]
-    if memory[8] > 0 and count >= 2 and total > float(params.closure_undo_end) * count:
-        return np.concatenate([[count + 1.0], memory[5:8]])
+    count, total = float(memory.conflict_count), float(memory.conflict_sum)
+    if float(memory.watch) > 0 and count >= 2 and total > float(params.closure.undo_end) * count:
+        return np.concatenate([[count + 1.0], np.asarray(memory.applied, np.float64)])
     return np.zeros(4)
 
 

@@ -225,7 +225,7 @@ def update_paged(
     The cells and values are those of :func:`update_grids` on dense grids; the tiles
     they fall in are allocated or copied first (:func:`jaxslam.grid.paged.plan_writes`).
     ``window_range`` (static, m) sizes the window of tiles around each sensor; the
-    traced ``usable_range`` is cropped to it. When the plan is refused (pool full, or a tile outside the page table)
+    traced ``sensor.usable_range`` is cropped to it. When the plan is refused (pool full, or a tile outside the page table)
     the maps come back unchanged with the reason in the status.
 
     Returns:

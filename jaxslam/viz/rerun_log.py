@@ -296,8 +296,8 @@ class GridLiveLog:
         from jaxslam.grid.paged import PagedLayout, stitch
 
         state, params = carry
-        laser_offset = np.asarray(params.laser_offset, np.float64)
-        unit = float(params.log_odds_unit)
+        laser_offset = np.asarray(params.sensor.laser_offset, np.float64)
+        unit = float(params.map.log_odds_unit)
         viz, times = self.viz, np.asarray(self.log.scan_times)
         odom0 = np.asarray(self.log.odom_poses[0], np.float64)
         if self._first:

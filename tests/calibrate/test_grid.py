@@ -15,12 +15,13 @@ from jaxslam.app.cli import main
 from jaxslam.datasets.laser_sim import simulate
 from jaxslam.grid import srupf
 from jaxslam.grid.experiment import run_grid_slam
-from jaxslam.grid.types import default_params
+from jaxslam.grid.algorithms import grid_algorithm
 
 SCANS = 36
 PARTICLES = 4
 # Keyframes every 0.5 m; resampling at every keyframe (so the gathers are exercised).
-KEYFRAMES = dict(linear_update=0.5, angular_update=0.3, resample_threshold=1.0, weight_gain=0.1)
+KEYFRAMES = {"keyframes.linear_update": 0.5, "keyframes.angular_update": 0.3, "weights.resample_threshold": 1.0,
+             "weights.gain": 0.1}
 
 
 @pytest.fixture(scope="module")
@@ -32,20 +33,21 @@ def setup():
     # configuration, search included.)
     reference = run_grid_slam(G.window_log(log, SCANS), "srupf-gm", particles=PARTICLES, seed=0, progress=False,
                               params=KEYFRAMES, config={"match_iterations": 6, "closure": False})
-    params = default_params(log.angles, log.laser_offset, **KEYFRAMES)
+    params = grid_algorithm("srupf-gm").make_params(log.angles, log.laser_offset, values=KEYFRAMES)
     inputs = jax.tree_util.tree_map(jnp.asarray, G.window_inputs(log, SCANS))
     return log, reference.config, params, inputs
 
 
 def test_log_noise_round_trip():
-    params = default_params(np.zeros(3), match_noise=np.array([0.02, 0.03, 0.01]))
-    names = ("q_linear", "match_noise")
+    params = grid_algorithm("srupf-gm").make_params(np.zeros(3), values={"srupf.match_noise": np.array([0.02, 0.03, 0.01])})
+    names = ("srupf.q_linear", "srupf.match_noise")
     theta = G.log_noise_of(params, names)
     np.testing.assert_allclose(np.exp(theta), [0.02, 0.02, 0.03, 0.01], rtol=1e-6)
     again = G.with_log_noise(params, jnp.asarray(theta) + np.log(2.0), names)
-    np.testing.assert_allclose(np.asarray(again.match_noise), [0.04, 0.06, 0.02], rtol=1e-6)
-    assert G.values_of(theta, params, names)["match_noise"] == pytest.approx([0.02, 0.03, 0.01])
-    assert G.trajectory_columns(params, names) == ("q_linear", "match_noise[0]", "match_noise[1]", "match_noise[2]")
+    np.testing.assert_allclose(np.asarray(again.srupf.match_noise), [0.04, 0.06, 0.02], rtol=1e-6)
+    assert G.values_of(theta, params, names)["srupf.match_noise"] == pytest.approx([0.02, 0.03, 0.01])
+    assert G.trajectory_columns(params, names) == ("srupf.q_linear", "srupf.match_noise[0]", "srupf.match_noise[1]",
+                                                  "srupf.match_noise[2]")
 
 
 @pytest.mark.long
@@ -90,7 +92,7 @@ def test_predictive_likelihood_matches_a_direct_computation(setup):
 
     log, config, _, _ = setup
     with jax.enable_x64(True):
-        params = default_params(log.angles, log.laser_offset, dtype=jnp.float64, **KEYFRAMES)
+        params = grid_algorithm("srupf-gm").make_params(log.angles, log.laser_offset, dtype=jnp.float64, values=KEYFRAMES)
         inputs = jax.tree_util.tree_map(jnp.asarray, G.window_inputs(log, SCANS, jnp.float64))
         key = jax.random.PRNGKey(3)
         state = srupf.init(key, params, config, inputs.first_scan, inputs.initial_pose)
@@ -108,7 +110,7 @@ def test_predictive_likelihood_matches_a_direct_computation(setup):
         @jax.jit
         def likelihood(state, table, pose):
             read = particle_reader(state, table, config)
-            return scan_log_likelihood(read, pose, points, mask, params.laser_offset, config.layout,
+            return scan_log_likelihood(read, pose, points, mask, params.sensor.laser_offset, config.layout,
                                        score_model(params), config.score_kernel, config.free_check)[0]
 
         per_particle = []
@@ -117,7 +119,7 @@ def test_predictive_likelihood_matches_a_direct_computation(setup):
             for k in range(3):
                 pose = np.asarray(prediction.mean[m]) + np.asarray(prediction.sqrt_cov[m]) @ eps[m, k]
                 lik = likelihood(state, state.maps.tables[m], jnp.asarray(pose))
-                values.append(float(params.weight_gain) * float(lik))
+                values.append(float(params.weights.gain) * float(lik))
             per_particle.append(float(logsumexp(np.array(values))) - np.log(3))
         expected = float(logsumexp(np.log(weights) + np.array(per_particle)))
         assert float(total) == pytest.approx(expected, rel=1e-9, abs=1e-9)
@@ -145,7 +147,7 @@ def test_calibrate_srupf_then_run_with_params(tmp_path):
                  "--samples", "2"]) == 0
     payload = json.loads((out / "calibration.json").read_text())
     assert set(payload["params_after"]) == set(G.GRID_NOISE_NAMES)
-    assert len(payload["params_after"]["match_noise"]) == 3 and payload["validation"]["steps"] == [0, 1, 2]
+    assert len(payload["params_after"]["srupf.match_noise"]) == 3 and payload["validation"]["steps"] == [0, 1, 2]
     assert (out / "calibration.png").exists()
     run_out = tmp_path / "run"
     assert main(["run", "--algorithm", "srupf-gm", "--out", str(run_out), "--particles", "3", "--max-steps", "4",
@@ -186,8 +188,8 @@ def test_calibration_takes_the_runs_range_rule(monkeypatch):
     monkeypatch.setattr(G, "programs", programs)
     result = G.calibrate_grid(far, particles=2, filters=1, steps=1, window=24, samples=1, validation=0.0,
                               params=KEYFRAMES)
-    assert float(result.params.usable_range) == want["usable_range"]
-    assert float(result.params.score_range) == want["score_range"]
+    assert float(result.params.sensor.usable_range) == want["usable_range"]
+    assert float(result.params.sensor.score_range) == want["score_range"]
     window_range = 10.0 * np.ceil(want["usable_range"] / 10.0)
     assert result.config.window_range == window_range and seen["config"].window_range == window_range
     assert seen["config"].window_range > 20.0  # not the default's

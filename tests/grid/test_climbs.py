@@ -12,7 +12,8 @@ import pytest
 from jaxslam.grid.climbs import Phase, best_of, run_phases
 from jaxslam.grid.filter import coarse_start, coarse_to_fine
 from jaxslam.grid.matching import EllipseBound, get_matcher, gmapping_basis, hill_climb, search_bound
-from jaxslam.grid.types import default_params
+from jaxslam.grid.algorithms import grid_algorithm
+from jaxslam.grid.types import with_values
 from tests.grid.test_score_matching import coarse_case
 
 TARGET = np.array([0.9, -0.7, 0.4])
@@ -76,8 +77,8 @@ def test_phases_are_the_climbs_written_out(dtype):
     the order is seen), and a climb that does not run changes nothing."""
     config = SimpleNamespace(match_iterations=5, coarse_iterations=3)
     with jax.enable_x64(dtype == jnp.float64):
-        params = default_params(np.linspace(-1.0, 1.0, 5), dtype=dtype)
-        params = params._replace(coarse_sigma=jnp.asarray(4.0, dtype), score_sigma=jnp.asarray(1.0, dtype))
+        params = grid_algorithm("srupf-gm").make_params(np.linspace(-1.0, 1.0, 5), dtype=dtype)
+        params = with_values(params, {"matcher.coarse_sigma": jnp.asarray(4.0, dtype), "matcher.score_sigma": jnp.asarray(1.0, dtype)})
         start = jnp.asarray([0.1, 0.2, 0.0], dtype)
         starts = jnp.asarray([[0.5, -0.5, 0.3], [0.85, -0.65, 0.35], [0.0, 0.0, 0.0]], dtype)
 
@@ -104,8 +105,8 @@ def test_phases_are_the_climbs_written_out(dtype):
 
         def written_out(bar, params):
             basis = gmapping_basis(params, dtype)
-            wide = lambda p: smooth_score(p, params.coarse_sigma)  # noqa: E731
-            narrow = lambda p: smooth_score(p, params.score_sigma)  # noqa: E731
+            wide = lambda p: smooth_score(p, params.matcher.coarse_sigma)  # noqa: E731
+            narrow = lambda p: smooth_score(p, params.matcher.score_sigma)  # noqa: E731
             pose, score, _ = hill_climb(wide, start, basis, config.coarse_iterations)
             pose, score, _ = hill_climb(narrow, pose, basis, config.match_iterations)
             if bar > 0:  # every score here is negative
@@ -125,7 +126,7 @@ def test_phases_are_the_climbs_written_out(dtype):
             want = (pose, score, *best_end(ends))
             for value, expected in zip((got["matched"], got["score"], got["found_pose"], got["found"]), want):
                 np.testing.assert_array_equal(np.asarray(value), np.asarray(expected))
-        direct, _, _ = hill_climb(lambda p: smooth_score(p, params.score_sigma), start, gmapping_basis(params, dtype),
+        direct, _, _ = hill_climb(lambda p: smooth_score(p, params.matcher.score_sigma), start, gmapping_basis(params, dtype),
                                   config.match_iterations)
         assert np.max(np.abs(np.asarray(got["matched"]) - np.asarray(direct))) > 0.01
 
@@ -140,13 +141,13 @@ def test_coarse_to_fine_is_the_coarse_stage_then_the_matcher(matcher):
 
     true_pose, prm, pts, mask, read, config = coarse_case()
     config = SimpleNamespace(**{**vars(config), "matcher": matcher})
-    score_fn = make_score_fn(read, pts, mask, prm.laser_offset, config.layout, score_model(prm), config.score_kernel,
+    score_fn = make_score_fn(read, pts, mask, prm.sensor.laser_offset, config.layout, score_model(prm), config.score_kernel,
                              config.free_check)
     sqrt_cov = jnp.diag(jnp.asarray([0.05, 0.05, 0.03]))
 
     def written_out(start, mean):
         begin = coarse_start(read, pts, mask, start, prm, config,
-                             search_bound(matcher, mean, sqrt_cov, prm, prm.coarse_radius))
+                             search_bound(matcher, mean, sqrt_cov, prm, prm.matcher.coarse_radius))
         return get_matcher(matcher)(score_fn, begin, sqrt_cov, prm, config.match_iterations, 0, prior_mean=mean)
 
     fused = jax.jit(lambda s, m: coarse_to_fine(read, pts, mask, s, sqrt_cov, prm, config, m, prior_mean=m))
@@ -170,7 +171,7 @@ def test_the_default_programs_hold_the_score_kernel_a_few_times(sim, monkeypatch
     the start and at the match."""
     import jaxslam.grid.score as score
     from jaxslam.grid import gmapping, srupf
-    from jaxslam.grid.experiment import make_config
+    from jaxslam.grid.algorithms import grid_algorithm
     from tests.grid.sim_state import state_and_scans
 
     calls = []
@@ -179,7 +180,7 @@ def test_the_default_programs_hold_the_score_kernel_a_few_times(sim, monkeypatch
     with jax.enable_x64(True):
         state, scans, params, config = state_and_scans(sim)
         assert config.closure and config.recover_radius > 0 and config.coarse_iterations > 0
-        gmapping_config = make_config("gmapping", 2, config.layout, config.num_beams, config.max_points)
+        gmapping_config = grid_algorithm("gmapping").make_config(2, config.layout, config.num_beams, config.max_points)
         for module, cfg, copies in ((srupf, config, 6), (gmapping, gmapping_config, 6)):
             calls.clear()
             jax.eval_shape(lambda s: module.step(jax.random.PRNGKey(0), s, jnp.zeros(3), scans[3], params, cfg),

@@ -5,6 +5,7 @@ alone."""
 import dataclasses
 import math
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,11 +13,12 @@ import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.grid.closure import (
-    MEMORY, POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
+    POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
 )
 from jaxslam.grid.undone_closures import judge_at_end, put_back, reported_undo, take_back
 from jaxslam.grid.map import GridSpec, dense_reader
-from jaxslam.grid.types import default_params
+from jaxslam.grid.algorithms import grid_algorithm
+from jaxslam.grid.types import ClosureState, with_values
 from jaxslam.grid.tracking import track as _track
 from tests.grid.sim_state import state_and_scans
 
@@ -145,7 +147,7 @@ def tracked(sim):
         state, scans, params, config = state_and_scans(sim)
     assert config.closure  # SRUPF-GM's default
     # A long way (100 m of odometry) since the last closure: no bound on the jump.
-    state = state._replace(closure_memory=state.closure_memory.at[4].set(100.0))
+    state = state._replace(closure=_memory(travelled=100.0))
     # The closure search alone. These tests stand a loop's drift in for one increment
     # metres off; SRUPF-GM's recovery from odometry jumps (jaxslam.grid.recovery, on by
     # default) takes such an increment within its 1.5 m search before the closure
@@ -161,20 +163,20 @@ def test_a_guess_metres_off_is_closed_onto_the_map(sim, tracked):
     replaces it. With the trigger at 0 (no search) the same scan is left off: the test
     can fail."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
         motion, score, accepted, closed, *_ = track(state, wrong, scans[3], at_once, config)
-        off = at_once._replace(closure_trigger=np.float64(0.0))
+        off = with_values(at_once, {"closure.trigger": np.float64(0.0)})
         motion0, score0, _, closed0, *_ = track(state, wrong, scans[3], off, config)
         default = track(state, wrong, scans[3], params, dataclasses.replace(config, closure=False))
     error = se2_between(true_step[None], np.asarray(motion)[None])[0]
     error0 = se2_between(true_step[None], np.asarray(motion0)[None])[0]
     assert bool(closed) and bool(accepted), (score, error)
     assert np.hypot(*error[:2]) < 0.05 and abs(error[2]) < math.radians(0.5), error
-    assert float(score) >= float(params.closure_min_score)
-    assert not bool(closed0) and float(score0) < float(params.closure_trigger)
+    assert float(score) >= float(params.closure.min_score)
+    assert not bool(closed0) and float(score0) < float(params.closure.trigger)
     assert np.hypot(*error0[:2]) > 0.5, error0
     # The default config (no search compiled in) tracks like the trigger at 0.
     np.testing.assert_allclose(np.asarray(default[0]), np.asarray(motion0), atol=1e-12)
@@ -186,7 +188,7 @@ def test_the_default_reach_closes_a_guess_beyond_four_metres(sim, tracked):
     closures jump up to 4.7 m): the default reach (6 m) closes it onto the map; a
     4 m reach cannot (the test can fail)."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     assert config.closure_radius == 6.0
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
@@ -207,15 +209,15 @@ def test_the_reach_grows_with_the_distance_since_the_last_closure(sim, tracked):
     the far search closes it onto the map. A rate of 0 keeps the fixed reach (the test
     can fail both ways)."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
-    assert config.closure_radius_far == 10.0 and float(params.closure_reach_rate) == pytest.approx(0.02)
-    far_state = state._replace(closure_memory=state.closure_memory.at[4].set(450.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
+    assert config.closure_radius_far == 10.0 and float(params.closure.reach_rate) == pytest.approx(0.02)
+    far_state = state._replace(closure=_memory(travelled=450.0))
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[7.2, 0.3, math.radians(2.0)]]))[0]
         short = track(state, wrong, scans[3], at_once, config)
         long = track(far_state, wrong, scans[3], at_once, config)
-        fixed = track(far_state, wrong, scans[3], at_once._replace(closure_reach_rate=np.float64(0.0)), config)
+        fixed = track(far_state, wrong, scans[3], with_values(at_once, {"closure.reach_rate": np.float64(0.0)}), config)
     assert bool(long[3]) and _on_true_pose(true_step, long), long[:4]
     for off in (short, fixed):
         error = se2_between(true_step[None], np.asarray(off[0])[None])[0]
@@ -230,10 +232,9 @@ def test_a_good_match_is_left_alone(sim, tracked):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = true_step + np.array([0.03, -0.02, 0.04])
         got = track(state, wrong, scans[3], params, config)
-        without = track(state, wrong, scans[3], params._replace(closure_trigger=np.float64(0.0)), config)
-    assert float(got[1]) > float(params.closure_trigger) and not bool(got[3])
-    for a, b in zip(got, without, strict=True):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        without = track(state, wrong, scans[3], with_values(params, {"closure.trigger": np.float64(0.0)}), config)
+    assert float(got[1]) > float(params.closure.trigger) and not bool(got[3])
+    chex.assert_trees_all_equal(got, without)
 
 
 def test_a_closure_that_does_not_beat_the_gain_is_refused(sim, tracked):
@@ -243,9 +244,9 @@ def test_a_closure_that_does_not_beat_the_gain_is_refused(sim, tracked):
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        strict = params._replace(closure_gain=np.float64(1e6), closure_confirm=np.float64(1.0))
+        strict = with_values(params, {"closure.gain": np.float64(1e6), "closure.confirm": np.float64(1.0)})
         motion, _, _, closed, *_ = track(state, wrong, scans[3], strict, config)
-        plain = track(state, wrong, scans[3], params._replace(closure_trigger=np.float64(0.0)), config)
+        plain = track(state, wrong, scans[3], with_values(params, {"closure.trigger": np.float64(0.0)}), config)
     assert not bool(closed)
     np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
 
@@ -256,25 +257,26 @@ def test_a_candidate_is_held_until_confirmed(sim, tracked):
     correction onto the true pose and closes. A held candidate that the next scan does not confirm (a wrong
     correction of 2 m) is dropped and the local match kept."""
     track, state, scans, params, config = tracked
-    confirm = params._replace(closure_confirm=np.float64(2.0))
+    confirm = with_values(params, {"closure.confirm": np.float64(2.0)})
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
         motion, _, _, closed, _, held, _ = track(state, wrong, scans[3], confirm, config)
-        plain = track(state, wrong, scans[3], confirm._replace(closure_trigger=np.float64(0.0)), config)
-        assert not bool(closed) and float(held[3]) == 1.0
+        plain = track(state, wrong, scans[3], with_values(confirm, {"closure.trigger": np.float64(0.0)}), config)
+        assert not bool(closed) and float(held.held_scans) == 1.0
         np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
         # The next scan (here the same one again) follows and closes.
-        motion2, _, _, closed2, _, held2, _ = track(state._replace(closure_memory=held), wrong, scans[3], confirm, config)
+        motion2, _, _, closed2, _, held2, _ = track(state._replace(closure=held), wrong, scans[3], confirm, config)
         error2 = se2_between(true_step[None], np.asarray(motion2)[None])[0]
-        assert bool(closed2) and not np.any(np.asarray(held2)[:5]), held2
+        assert bool(closed2) and not np.any(np.asarray(held2.held)) and float(held2.held_scans) == 0.0, held2
+        assert float(held2.travelled) == 0.0
         assert np.hypot(*error2[:2]) < 0.05 and abs(error2[2]) < math.radians(0.5), error2
         # A wrong held correction loses against a good local match and is dropped.
         good = true_step + np.array([0.03, -0.02, 0.04])
-        bogus = state._replace(closure_memory=jnp.zeros(MEMORY).at[:5].set(jnp.asarray([2.0, 0.0, 0.0, 1.0, 100.0])))
+        bogus = state._replace(closure=_memory(held=[2.0, 0.0, 0.0], held_scans=1.0, travelled=100.0))
         got = track(bogus, good, scans[3], confirm, config)
         fresh = track(state, good, scans[3], confirm, config)
-    assert not bool(got[3]) and not np.any(np.asarray(got[5][:4]))
+    assert not bool(got[3]) and not np.any(np.asarray(got[5].held)) and float(got[5].held_scans) == 0.0
     np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(fresh[0]))
 
 
@@ -284,54 +286,61 @@ def test_a_jump_beyond_the_drift_since_the_last_closure_is_refused(sim, tracked)
     that the scan's own odometry makes 1.6 m or more it closes again; the distance
     restarts from 0 at the closure and adds up over refused scans."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        fresh = state._replace(closure_memory=jnp.zeros(MEMORY))
+        fresh = state._replace(closure=_memory())
         refused = track(fresh, wrong, scans[3], at_once, config)
         step = float(np.hypot(*wrong[:2]))
-        loose = at_once._replace(closure_drift=np.float64(1.7 / step))
+        loose = with_values(at_once, {"closure.drift": np.float64(1.7 / step)})
         closed = track(fresh, wrong, scans[3], loose, config)
-    assert not bool(refused[3]) and float(refused[5][4]) == pytest.approx(step)
-    assert bool(closed[3]) and float(closed[5][4]) == 0.0
+    assert not bool(refused[3]) and float(refused[5].travelled) == pytest.approx(step)
+    assert bool(closed[3]) and float(closed[5].travelled) == 0.0
+
+
+def _memory(map_bound: bool = False, **fields) -> ClosureState:
+    """A float64 closure state: empty but for ``fields``; ``map_bound``: with the sum of
+    the kept corrections (``config.closure_map_bound``)."""
+    empty = ClosureState(*(None if f is None else np.zeros(np.shape(f))
+                           for f in ClosureState.empty(np.float32, map_bound)))
+    return empty._replace(**{k: np.asarray(v, np.float64) for k, v in fields.items()})
 
 
 def test_a_first_closure_is_bounded_by_the_tracking_drift_and_a_later_one_by_the_map_offset(sim, tracked):
     """``config.closure_map_bound``: 50 m of odometry and no closure kept yet, the 1.6 m
-    closure is beyond ``closure_reach_rate`` (0.02) x 50 m = 1 m and refused, where the
-    ``closure_drift`` bound alone (25 m) takes it; with 1 m of corrections kept before
+    closure is beyond ``closure.reach_rate`` (0.02) x 50 m = 1 m and refused, where the
+    ``closure.drift`` bound alone (25 m) takes it; with 1 m of corrections kept before
     (the map drawn before them can be 1 m off) the bound is 2 m and it closes, and the
     sum grows by the correction taken. An undo takes that correction off the sum."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     bounded = dataclasses.replace(config, closure_map_bound=True)
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        memory = jnp.zeros(MEMORY + 1).at[4].set(50.0)
-        plain = track(state._replace(closure_memory=memory[:MEMORY]), wrong, scans[3], at_once, config)
-        first = track(state._replace(closure_memory=memory), wrong, scans[3], at_once, bounded)
-        later = track(state._replace(closure_memory=memory.at[MEMORY].set(1.0)), wrong, scans[3], at_once, bounded)
+        plain = track(state._replace(closure=_memory(travelled=50.0)), wrong, scans[3], at_once, config)
+        first = track(state._replace(closure=_memory(True, travelled=50.0)), wrong, scans[3], at_once, bounded)
+        later = track(state._replace(closure=_memory(True, travelled=50.0, kept=1.0)), wrong, scans[3], at_once,
+                      bounded)
+    assert plain[5].kept is None
     assert bool(plain[3]) and _on_true_pose(true_step, plain), plain[:4]
-    assert not bool(first[3]) and float(first[5][MEMORY]) == 0.0
+    assert not bool(first[3]) and float(first[5].kept) == 0.0
     assert bool(later[3]) and _on_true_pose(true_step, later), later[:4]
-    taken = float(np.hypot(*np.asarray(later[5])[5:7]))
-    assert taken > 1.0 and float(later[5][MEMORY]) == pytest.approx(1.0 + taken)
+    taken = float(np.hypot(*np.asarray(later[5].applied)[:2]))
+    assert taken > 1.0 and float(later[5].kept) == pytest.approx(1.0 + taken)
     # the closure undone at the end of its watch: its correction leaves the sum
-    applied = np.asarray(later[5])[5:8]
-    undo_memory = jnp.asarray(_watched(state, applied, 6.0, 10.0, 20.0).closure_memory)
-    undo_memory = jnp.concatenate([undo_memory, jnp.asarray([1.0 + taken])])
+    applied = np.asarray(later[5].applied)
+    undo_memory = _watched(state, applied, 6.0, 10.0, 20.0).closure._replace(kept=np.float64(1.0 + taken))
     with jax.enable_x64(True):
-        undone = track(state._replace(closure_memory=undo_memory), true_step, scans[3], params, bounded)
-    assert float(undone[6][0]) > 0 and float(undone[5][MEMORY]) == pytest.approx(1.0)
+        undone = track(state._replace(closure=undo_memory), true_step, scans[3], params, bounded)
+    assert float(undone[6][0]) > 0 and float(undone[5].kept) == pytest.approx(1.0)
 
 
 def _watched(state, applied, travelled, conflict_sum, conflict_count, before=7.0, mode=1.0):
-    memory = jnp.zeros(MEMORY).at[4].set(travelled).at[5:8].set(jnp.asarray(applied))
-    memory = memory.at[8].set(mode).at[9].set(conflict_sum).at[10].set(conflict_count).at[11].set(before)
-    memory = memory.at[12:15].set(jnp.asarray(applied))
-    return state._replace(closure_memory=memory)
+    return state._replace(closure=_memory(travelled=travelled, applied=applied, watch=mode,
+                                          conflict_sum=conflict_sum, conflict_count=conflict_count, before=before,
+                                          found=applied))
 
 
 def _closed_off(sim, state):
@@ -360,29 +369,29 @@ def test_a_watched_closure_whose_beams_keep_ending_in_free_space_is_undone(sim, 
     correction is refused from then on. With a low mean conflict, or before the watch
     distance, nothing changes but the watch state."""
     track, state, scans, params, config = tracked
-    undo = params._replace(closure_undo=np.float64(0.11), closure_watch=np.float64(5.0),
-                           closure_trigger=np.float64(0.0))
+    undo = with_values(params, {"closure.undo": np.float64(0.11), "closure.watch": np.float64(5.0), "closure.trigger": np.float64(0.0)})
     with jax.enable_x64(True):
         true_step, wrong, applied = _closed_off(sim, state)
-        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3], undo, config)
+        plain = track(state._replace(closure=_memory()), wrong, scans[3], undo, config)
         high = track(_watched(state, applied, 5.5, 3.0, 10.0), wrong, scans[3], undo, config)
         low = track(_watched(state, applied, 5.5, 0.5, 10.0), wrong, scans[3], undo, config)
         early = track(_watched(state, applied, 2.0, 3.0, 10.0), wrong, scans[3], undo, config)
         plain_error = se2_between(true_step[None], np.asarray(plain[0])[None])[0]
     assert np.hypot(*plain_error[:2]) > 1.0  # the local match alone stays off
     assert bool(high[3]) and _on_true_pose(true_step, high), high[0]
-    memory = np.asarray(high[5])
-    assert memory[8] == -1.0 and memory[4] == pytest.approx(5.5 + float(np.hypot(*wrong[:2])) + 7.0)
-    np.testing.assert_allclose(memory[5:8], applied, atol=1e-12)
+    memory = high[5]
+    assert float(memory.watch) == -1.0
+    assert float(memory.travelled) == pytest.approx(5.5 + float(np.hypot(*wrong[:2])) + 7.0)
+    np.testing.assert_allclose(np.asarray(memory.applied), applied, atol=1e-12)
     # what the undo took back, for the path: the 10 watched scans and this one, and A
     assert float(high[6][0]) == 11.0
     np.testing.assert_allclose(np.asarray(high[6][1:]), applied, atol=1e-12)
     for kept, watching in ((low, 0.0), (early, 1.0)):
         assert not bool(kept[3])
         np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(plain[0]))
-        assert float(kept[5][8]) == watching
+        assert float(kept[5].watch) == watching
         np.testing.assert_array_equal(np.asarray(kept[6]), np.zeros(4))
-    assert float(early[5][10]) == 11.0 and float(early[5][9]) == pytest.approx(3.0 + float(early[4]))
+    assert float(early[5].conflict_count) == 11.0 and float(early[5].conflict_sum) == pytest.approx(3.0 + float(early[4]))
 
 
 def test_a_closure_with_the_undone_correction_is_refused(sim, tracked):
@@ -390,18 +399,18 @@ def test_a_closure_with_the_undone_correction_is_refused(sim, tracked):
     correction; after that correction was undone (watch state -1) the same candidate is
     refused, while a refused correction elsewhere does not stop it."""
     track, state, scans, params, config = tracked
-    at_once = params._replace(closure_confirm=np.float64(1.0))
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        fresh = state._replace(closure_memory=jnp.zeros(MEMORY).at[4].set(100.0))
+        fresh = state._replace(closure=_memory(travelled=100.0))
         closed = track(fresh, wrong, scans[3], at_once, config)
-        correction = np.asarray(closed[5][12:15])
+        correction = np.asarray(closed[5].found)
         same = track(_watched(state, correction, 100.0, 0.0, 0.0, mode=-1.0), wrong, scans[3], at_once, config)
         other = track(_watched(state, correction + [3.0, 0.0, 0.0], 100.0, 0.0, 0.0, mode=-1.0), wrong, scans[3],
                       at_once, config)
-    assert bool(closed[3]) and float(closed[5][8]) == 1.0 and np.hypot(*correction[:2]) > 1.0
-    assert not bool(same[3]) and float(same[5][8]) == -1.0
+    assert bool(closed[3]) and float(closed[5].watch) == 1.0 and np.hypot(*correction[:2]) > 1.0
+    assert not bool(same[3]) and float(same[5].watch) == -1.0
     assert bool(other[3])
     np.testing.assert_array_equal(np.asarray(other[0]), np.asarray(closed[0]))
 
@@ -414,26 +423,25 @@ def test_a_closure_whose_first_watched_scans_conflict_strongly_is_undone_early(s
     watched (a robot standing still repeats one scan), before a fifth of the watch
     distance, or with the parameter at 1 (off), nothing changes but the watch state."""
     track, state, scans, params, config = tracked
-    fast = params._replace(closure_undo=np.float64(0.11), closure_watch=np.float64(20.0),
-                           closure_undo_fast=np.float64(0.4), closure_trigger=np.float64(0.0))
+    fast = with_values(params, {"closure.undo": np.float64(0.11), "closure.watch": np.float64(20.0), "closure.undo_fast": np.float64(0.4), "closure.trigger": np.float64(0.0)})
     with jax.enable_x64(True):
         true_step, wrong, applied = _closed_off(sim, state)
-        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3], fast, config)
+        plain = track(state._replace(closure=_memory()), wrong, scans[3], fast, config)
         # the mean after this scan is at least (0.9 + 0) / 2 = 0.45 whatever this scan's conflict
         early = track(_watched(state, applied, 4.0, 0.9, 1.0), wrong, scans[3], fast, config)
         # a sum no single scan can reach (0.9 + this scan's), counted as one scan
         one_scan = track(_watched(state, applied, 4.0, 0.9, 0.0), wrong, scans[3], fast, config)
         too_soon = track(_watched(state, applied, 0.0, 0.9, 1.0), wrong, scans[3], fast, config)
         off = track(_watched(state, applied, 4.0, 0.9, 1.0), wrong, scans[3],
-                    fast._replace(closure_undo_fast=np.float64(1.0)), config)
+                    with_values(fast, {"closure.undo_fast": np.float64(1.0)}), config)
     step = float(np.hypot(*wrong[:2]))
     assert 1.0 < step < 4.0
     assert bool(early[3]) and _on_true_pose(true_step, early), early[0]
-    assert float(early[5][8]) == -1.0
+    assert float(early[5].watch) == -1.0
     for kept in (one_scan, too_soon, off):
         assert not bool(kept[3])
         np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(plain[0]))
-        assert float(kept[5][8]) == 1.0
+        assert float(kept[5].watch) == 1.0
 
 
 def test_no_closure_is_taken_while_another_is_watched(sim, tracked):
@@ -444,24 +452,23 @@ def test_no_closure_is_taken_while_another_is_watched(sim, tracked):
     ``closure_nest`` 1 the far-off scan closes (a closure inside the watch, which would
     restart it); once the watch has ended (10.5 m, the closure kept) it closes with 0 too."""
     track, state, scans, params, config = tracked
-    assert float(params.closure_nest) == 0.0
-    at_once = params._replace(closure_confirm=np.float64(1.0), closure_drift=np.float64(10.0),
-                              closure_watch=np.float64(10.0))
+    assert float(params.closure.nest) == 0.0
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0), "closure.drift": np.float64(10.0), "closure.watch": np.float64(10.0)})
     other = np.array([0.3, 0.0, 0.0])
     with jax.enable_x64(True):
         true_step, wrong, _ = _closed_off(sim, state)
-        plain = track(state._replace(closure_memory=jnp.zeros(MEMORY)), wrong, scans[3],
-                      at_once._replace(closure_trigger=np.float64(0.0)), config)
+        plain = track(state._replace(closure=_memory()), wrong, scans[3],
+                      with_values(at_once, {"closure.trigger": np.float64(0.0)}), config)
         blocked = track(_watched(state, other, 2.0, 0.0, 2.0), wrong, scans[3], at_once, config)
         nested = track(_watched(state, other, 2.0, 0.0, 2.0), wrong, scans[3],
-                       at_once._replace(closure_nest=np.float64(1.0)), config)
+                       with_values(at_once, {"closure.nest": np.float64(1.0)}), config)
         after = track(_watched(state, other, 10.5, 0.0, 10.0), wrong, scans[3], at_once, config)
-    assert not bool(blocked[3]) and float(blocked[5][8]) == 1.0
+    assert not bool(blocked[3]) and float(blocked[5].watch) == 1.0
     np.testing.assert_array_equal(np.asarray(blocked[0]), np.asarray(plain[0]))
     assert not _on_true_pose(true_step, plain)
     for closed in (nested, after):
         assert bool(closed[3]) and _on_true_pose(true_step, closed), closed[0]
-        assert float(closed[5][8]) == 1.0 and float(closed[5][4]) == 0.0
+        assert float(closed[5].watch) == 1.0 and float(closed[5].travelled) == 0.0
 
 
 def test_the_path_takes_back_an_undone_closure_on_the_scans_it_moved():
@@ -499,8 +506,8 @@ def test_a_closure_still_watched_at_the_end_is_judged_on_the_scans_it_had():
     the end's row ``[7, A]`` takes the closure back on scans 33..39 (the closure's own
     scan and the 6 watched); with a low mean, fewer than two scans, no watch open (0),
     an undone closure (-1) or the parameter at 1, the row is zeros and the path stays."""
-    params = default_params(np.linspace(-1.5, 1.5, 10))
-    assert float(params.closure_undo_end) == pytest.approx(0.2)
+    params = grid_algorithm("srupf-gm").make_params(np.linspace(-1.5, 1.5, 10))
+    assert float(params.closure.undo_end) == pytest.approx(0.2)
     rng = np.random.default_rng(5)
     steps = np.column_stack([rng.uniform(0.05, 0.2, 40), rng.normal(0, 0.02, 40), rng.normal(0, 0.05, 40)])
     true = np.zeros((40, 3))
@@ -511,9 +518,7 @@ def test_a_closure_still_watched_at_the_end_is_judged_on_the_scans_it_had():
     reported[33:] = se2_compose(correction[None], true[33:])
 
     def memory(mode, total, count):
-        m = np.zeros(MEMORY)
-        m[5:8], m[8], m[9], m[10] = correction, mode, total, count
-        return m
+        return _memory(applied=correction, watch=mode, conflict_sum=total, conflict_count=count)
 
     end = judge_at_end(memory(1.0, 6 * 0.3, 6.0), params)
     np.testing.assert_allclose(end, [7.0, *correction])
@@ -525,6 +530,6 @@ def test_a_closure_still_watched_at_the_end_is_judged_on_the_scans_it_had():
     np.testing.assert_allclose(put_back(got, np.arange(40), undo), reported, atol=1e-12)
     for kept in (memory(1.0, 6 * 0.15, 6.0), memory(1.0, 0.9, 1.0), memory(0.0, 1.8, 6.0), memory(-1.0, 1.8, 6.0)):
         np.testing.assert_array_equal(judge_at_end(kept, params), np.zeros(4))
-    off = params._replace(closure_undo_end=np.float64(1.0))
+    off = with_values(params, {"closure.undo_end": np.float64(1.0)})
     np.testing.assert_array_equal(judge_at_end(memory(1.0, 6 * 0.9, 6.0), off), np.zeros(4))
     np.testing.assert_array_equal(take_back(reported, np.arange(40), reported_undo(np.zeros((39, 4)), None)), reported)

@@ -120,12 +120,14 @@ def test_fr079_unseen_rotations_are_tracked_with_the_defaults():
         relations = load_dataset_relations("fr079")
     except DatasetNotFoundError as err:
         pytest.skip(str(err))
-    from jaxslam.grid.types import DEFAULT_KEYFRAMES
+    from jaxslam.grid.experiment import keyframe_rule
+
+    rule = keyframe_rule(algorithm="srupf-gm")
 
     # scans 0..999 (two doorway episodes), cut as run_grid_slam cuts: by the run's rule on the odometry
-    count = int(np.sum(select_keyframes(log.odom_poses, *DEFAULT_KEYFRAMES, times=log.scan_times) < 1000))
+    count = int(np.sum(select_keyframes(log.odom_poses, *rule, times=log.scan_times) < 1000))
     tracked = run_grid_slam(log, "srupf-gm", particles=8, seed=0, progress=False, max_keyframes=count)
-    assert tracked.summary()["keyframe_rule"] == dict(zip(("linear_m", "angular_rad", "temporal_s"), DEFAULT_KEYFRAMES))
+    assert tracked.summary()["keyframe_rule"] == dict(zip(("linear_m", "angular_rad", "temporal_s"), rule))
     good = _window_relations_error(tracked, relations)
     assert good["n_relations"] > 150
     assert good["trans_err_mean_m"] < 0.08 and good["rot_err_mean_deg"] < 1.2, good

@@ -15,7 +15,8 @@ from jaxslam.grid import gmapping, srupf
 from jaxslam.grid.experiment import best_trajectory
 from jaxslam.grid.filter import best_particle, init
 from jaxslam.grid.paged import PagedLayout, stitch
-from jaxslam.grid.types import GridSlamConfig, Odometry, Scan, default_params
+from jaxslam.grid.algorithms import grid_algorithm
+from jaxslam.grid.types import GridSlamConfig, Odometry, Scan
 from jaxslam.grid.update import required_points
 from jaxslam.models.odometry import motion_noise_sqrt, sqrt_unscented_predict
 
@@ -36,8 +37,7 @@ def sim_problem(keyframes: int = 40):
 
 def run_filter(module, config, dtype, seed=0, **overrides):
     log, kf, odom, ranges, controls, _ = sim_problem()
-    params = default_params(log.angles, log.laser_offset, num_particles=config.num_particles, dtype=dtype,
-                            **overrides)
+    params = grid_algorithm("srupf-gm").make_params(log.angles, log.laser_offset, dtype=dtype, values=overrides)
     key = jax.random.PRNGKey(seed)
     state = init(key, params, config, Scan(jnp.asarray(ranges[0], dtype), jnp.asarray(log.valid[kf[0]])),
                  jnp.asarray(odom[0], dtype))
@@ -110,8 +110,9 @@ def test_no_recompile_when_params_change():
     config = make_config("gmapping", particles=4)
     run_filter(gmapping, config, jnp.float32, seed=1)
     after_first = gmapping.keyframe_run._cache_size()
-    run_filter(gmapping, config, jnp.float32, seed=2, srr=0.05, l_occ=6.0, linear_step=0.03, resample_threshold=0.3,
-               usable_range=15.0, weight_gain=0.1)
+    run_filter(gmapping, config, jnp.float32, seed=2, **{
+        "gmapping.srr": 0.05, "map.l_occ": 6.0, "matcher.linear_step": 0.03, "weights.resample_threshold": 0.3,
+        "sensor.usable_range": 15.0, "weights.gain": 0.1})
     assert gmapping.keyframe_run._cache_size() == after_first
 
 

@@ -57,10 +57,10 @@ def test_run_grid_slam_applies_and_reports_the_rule():
     result = run_grid_slam(far, "srupf-gm", particles=2, seed=0, progress=False, max_keyframes=3, config=NO_SEARCH)
     assert result.range_rule == {"source": "log", **want}
     assert result.summary()["range_rule"] == result.range_rule
-    assert result.params["usable_range"] == want["usable_range"]
-    assert result.params["score_range"] == want["usable_range"]
+    assert result.params["sensor.usable_range"] == want["usable_range"]
+    assert result.params["sensor.score_range"] == want["usable_range"]
     assert result.config.window_range == 10.0 * np.ceil(want["usable_range"] / 10.0)
     # an explicit usable range turns the rule off
     own = run_grid_slam(far, "srupf-gm", particles=2, seed=0, progress=False, max_keyframes=3,
-                        params={"usable_range": 15.0}, config=NO_SEARCH)
-    assert own.range_rule == {"source": "params"} and own.params["usable_range"] == 15.0
+                        params={"sensor.usable_range": 15.0}, config=NO_SEARCH)
+    assert own.range_rule == {"source": "params"} and own.params["sensor.usable_range"] == 15.0

@@ -10,7 +10,8 @@ import pytest
 from jaxslam.datasets.laser_sim import office_world, raycast
 from jaxslam.grid.filter import coarse_start, score_model
 from jaxslam.grid.map import GridSpec, dense_reader, init_grids
-from jaxslam.grid.types import GridSlamParams, default_params
+from jaxslam.grid.algorithms import grid_algorithm
+from jaxslam.grid.types import GridSlamParams, with_values
 from jaxslam.grid.matching import (
     EllipseBound,
     ellipse_factor,
@@ -173,7 +174,7 @@ def synthetic_map():
 
 
 def params_for(angles) -> GridSlamParams:
-    return default_params(angles, num_particles=1, dtype=jnp.float64)
+    return grid_algorithm("srupf-gm").make_params(angles, dtype=jnp.float64)
 
 
 @pytest.mark.parametrize("matcher,kernel", [("hill", "gaussian2"), ("ellipse", "gaussian3"), ("gradient", "bilinear")])
@@ -253,7 +254,7 @@ def test_coarse_start_widens_the_basin_of_the_narrow_match():
 
     fine = recovered(prm, False)
     wide = recovered(prm, True)  # coarse_sigma 0.2236 m, GMapping's kernel
-    narrow = recovered(prm._replace(coarse_sigma=prm.score_sigma), True)  # 4 + 8 narrow iterations
+    narrow = recovered(with_values(prm, {"matcher.coarse_sigma": prm.matcher.score_sigma}), True)  # 4 + 8 narrow iterations
     assert wide >= 2 * fine, (fine, wide)
     assert wide >= narrow + 3, (narrow, wide)
 
@@ -265,15 +266,15 @@ def test_coarse_start_stays_in_the_matchers_ellipse():
     reaches about 0.1 m and 0.05 rad, so the map's optimum lies outside it."""
     true_pose, prm, pts, mask, read, config = coarse_case()
     mean = jnp.asarray(true_pose + np.array([0.15, 0.0, 0.06]))
-    radius = float(prm.coarse_radius)
+    radius = float(prm.matcher.coarse_radius)
     sqrt_cov = jnp.diag(jnp.asarray([0.1, 0.1, 0.05]) / radius)
-    bound = search_bound("ellipse", mean, sqrt_cov, prm, prm.coarse_radius)
-    assert search_bound("hill", mean, sqrt_cov, prm, prm.coarse_radius) is None
-    assert search_bound(hill_climb_match, mean, sqrt_cov, prm, prm.coarse_radius) is None
-    assert float(search_bound(get_matcher("ellipse"), mean, sqrt_cov, prm, prm.coarse_radius).radius) == radius
+    bound = search_bound("ellipse", mean, sqrt_cov, prm, prm.matcher.coarse_radius)
+    assert search_bound("hill", mean, sqrt_cov, prm, prm.matcher.coarse_radius) is None
+    assert search_bound(hill_climb_match, mean, sqrt_cov, prm, prm.matcher.coarse_radius) is None
+    assert float(search_bound(get_matcher("ellipse"), mean, sqrt_cov, prm, prm.matcher.coarse_radius).radius) == radius
     np.testing.assert_allclose(np.asarray(bound.sqrt_cov), np.asarray(ellipse_factor(sqrt_cov, prm)))
     assert float(bound.radius) == radius
-    assert float(search_bound("ellipse", mean, sqrt_cov, prm).radius) == float(prm.ellipse_radius)
+    assert float(search_bound("ellipse", mean, sqrt_cov, prm).radius) == float(prm.matcher.ellipse_radius)
 
     def mahalanobis(pose):
         d = np.asarray(pose) - np.asarray(mean)
@@ -294,7 +295,7 @@ def test_srupf_particle_update_keeps_the_coarse_stage_in_its_ellipse():
     from jaxslam.grid.srupf import particle_update, predict
 
     true_pose, prm, pts, mask, read, config = coarse_case()
-    prm = prm._replace(q_linear=0.005, q_angular=0.005)
+    prm = with_values(prm, {"srupf.q_linear": 0.005, "srupf.q_angular": 0.005})
     pose = jnp.asarray(true_pose + np.array([0.1, 0.1, 0.08]))
     sqrt_cov = jnp.diag(jnp.full((3,), 1e-3))
     control = jnp.zeros(3)
@@ -307,7 +308,7 @@ def test_srupf_particle_update_keeps_the_coarse_stage_in_its_ellipse():
     def corrected(params):
         return particle_update(jax.random.PRNGKey(0), read, pose, sqrt_cov, control, pts, mask, params, config)[0]
 
-    reach = max(float(prm.coarse_radius), float(prm.ellipse_radius))
-    held, free = mahalanobis(corrected(prm)), mahalanobis(corrected(prm._replace(coarse_radius=jnp.asarray(1e6))))
+    reach = max(float(prm.matcher.coarse_radius), float(prm.matcher.ellipse_radius))
+    held, free = mahalanobis(corrected(prm)), mahalanobis(corrected(with_values(prm, {"matcher.coarse_radius": jnp.asarray(1e6)})))
     assert held <= reach + 1e-6, (held, free)
     assert free > reach, (held, free)

@@ -137,7 +137,7 @@ def test_a_simulated_map_continued_on_its_log_stays_on_the_saved_path(tmp_path):
     options = dict(particles=4, max_keyframes=12, progress=False, margin=3.0, config={"match_iterations": 6})
     first = run_grid_slam(log, **options)
     path = save_map_npz(tmp_path / "map.npz", first.map_log_odds, first.resolution, first.origin,
-                        log_odds_unit=first.params["log_odds_unit"], tile=64, pose=first.trajectory[-1])
+                        log_odds_unit=first.params["map.log_odds_unit"], tile=64, pose=first.trajectory[-1])
     grid = load_map(path)
     again = run_grid_slam(log, start_map=grid, initial_pose=first.trajectory[0], **options)
     np.testing.assert_allclose(again.trajectory[0], first.trajectory[0], atol=1e-6)

@@ -4,6 +4,7 @@ the fallback of an untrusted match, and the filter's own pose for every scan."""
 import dataclasses
 import functools
 
+import chex
 import jax
 import numpy as np
 import pytest
@@ -14,11 +15,12 @@ from jaxslam.datasets.geometry import se2_between, se2_compose
 from jaxslam.datasets.keyframes import select_keyframes
 from jaxslam.datasets.odometry_repair import repair_stale_odometry
 from jaxslam.grid import srupf
-from jaxslam.grid.experiment import closure_default, make_config, run_grid_slam
+from jaxslam.grid.algorithms import grid_algorithm
+from jaxslam.grid.experiment import run_grid_slam
 from jaxslam.grid.recovery import RECOVER_RADIUS, RECOVER_SLIP, jumped, slip
 from jaxslam.grid.tracking import constrained_shift, is_keyframe, scan_trajectory
 from jaxslam.grid.tracking import track as _track
-from jaxslam.grid.types import Scan, default_params
+from jaxslam.grid.types import Scan, with_values
 from tests.grid.sim_state import state_and_scans
 
 
@@ -74,8 +76,8 @@ def test_odometry_that_misses_turns_is_mapped_with_the_defaults(blind_turns):
     # motion noise (track_noise_scale 1), which is the run of config tracking=False bit
     # for bit (checked: the same trajectory and keyframes), in the program compiled above
     # (params are traced, the config is static).
-    blind = run_grid_slam(blind_turns, "srupf-gm", **{**options, "params": {"track_min_score": 1e9,
-                                                                             "track_noise_scale": 1.0}})
+    blind = run_grid_slam(blind_turns, "srupf-gm", **{**options, "params": {"tracking.min_score": 1e9,
+                                                                             "tracking.noise_scale": 1.0}})
     assert not blind.info["track_accepted"].any()
     assert _position_error(blind, blind_turns).mean() > 5 * err.mean()
 
@@ -118,7 +120,7 @@ def test_tracking_corrects_a_wrong_increment_and_falls_back_on_a_bad_match(sim):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = true_step + np.array([0.03, -0.02, 0.04])
         motion, score, accepted, *_ = track(state, wrong, scans[3], params, config)
-        assert bool(accepted) and float(score) > float(params.track_min_score)
+        assert bool(accepted) and float(score) > float(params.tracking.min_score)
         # The match removes most of the heading error of the odometry increment; in
         # this corridor the position along it is weakly constrained, so the position
         # error may only stay about where it was.
@@ -132,12 +134,12 @@ def test_tracking_corrects_a_wrong_increment_and_falls_back_on_a_bad_match(sim):
         rng = np.random.default_rng(0)
         junk = Scan(rng.permutation(np.asarray(scans[3].ranges)), scans[3].valid, 0.0)
         motion, score, accepted, *_ = track(state, wrong, junk, params, config)
-        assert not bool(accepted) and float(score) < float(params.track_min_score)
+        assert not bool(accepted) and float(score) < float(params.tracking.min_score)
         np.testing.assert_allclose(np.asarray(motion), wrong, atol=1e-12)
 
         # Where the score is not curved enough (here: nowhere) the position keeps the
         # odometry's and only the heading is corrected.
-        flat = params._replace(track_min_curvature=np.float64(1e9))
+        flat = with_values(params, {"tracking.min_curvature": np.float64(1e9)})
         motion, _, accepted, *_ = track(state, wrong, scans[3], flat, config)
         assert bool(accepted)
         np.testing.assert_allclose(np.asarray(motion)[:2], wrong[:2], atol=1e-12)
@@ -170,8 +172,7 @@ def test_coarse_to_fine_tracking_corrects_a_wrong_increment(sim):
         assert stuck[2] > 0.1, stuck  # the plain climb's worse optimum
         assert after[2] < 0.01 and np.hypot(*after[:2]) < 0.02, after
         particles_only = track(state, wrong, scans[3], params, dataclasses.replace(coarse, coarse_tracking=False))
-        for a, b in zip(plain, particles_only, strict=True):
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        chex.assert_trees_all_equal(plain, particles_only)
 
 
 def test_constrained_shift_drops_the_flat_direction_of_a_corridor():
@@ -179,7 +180,7 @@ def test_constrained_shift_drops_the_flat_direction_of_a_corridor():
     the correction keeps only its y part; a bowl keeps both."""
     import jax.numpy as jnp
 
-    params = default_params(np.zeros(3), dtype=np.float64)
+    params = grid_algorithm("srupf-gm").make_params(np.zeros(3), dtype=np.float64)
     guess = np.array([1.0, 2.0, 0.3])
     matched = np.array([1.3, 2.1, 0.35])
     count = jnp.asarray(100.0)
@@ -201,14 +202,13 @@ def test_constrained_shift_drops_the_flat_direction_of_a_corridor():
 
 def test_keyframe_rule_matches_select_keyframes():
     """The in-filter rule is GMapping's (``select_keyframes``) on the given motion."""
-    params = default_params(np.zeros(3), linear_update=1.0, angular_update=0.5, temporal_update=2.0,
-                            dtype=np.float64)
+    params = grid_algorithm("srupf-gm").make_params(np.zeros(3), dtype=np.float64, values={"keyframes.linear_update": 1.0, "keyframes.angular_update": 0.5, "keyframes.temporal_update": 2.0})
     cases = [((0.99, 0.0, 0.0), False), ((1.0, 0.0, 0.0), True), ((0.0, 0.5, 0.0), True),
              ((0.0, 0.49, 2.0), False), ((0.0, 0.0, 2.01), True)]
     for (distance, rotation, time), expected in cases:
         since = np.array([distance, rotation, time, 1.0])
         assert bool(is_keyframe(since, params)) == expected, since
-    off = params._replace(temporal_update=np.float64(-1.0))
+    off = with_values(params, {"keyframes.temporal_update": np.float64(-1.0)})
     assert not bool(is_keyframe(np.array([0.0, 0.0, 1e6, 1.0]), off))
 
 
@@ -275,10 +275,10 @@ def test_keyframe_correction_moves_only_along_constrained_directions(sim):
         mean, free = correct(state, params, config)
         assert np.hypot(*(np.asarray(free) - np.asarray(mean))[:2]) > 1e-3
         on = dataclasses.replace(config, constrain_matches=True)
-        _, flat = correct(state, params._replace(track_min_curvature=np.float64(1e9)), on)
+        _, flat = correct(state, with_values(params, {"tracking.min_curvature": np.float64(1e9)}), on)
         np.testing.assert_allclose(np.asarray(flat)[:2], np.asarray(mean)[:2], atol=1e-12)
         np.testing.assert_allclose(float(flat[2]), float(free[2]), atol=1e-12)
-        _, curved = correct(state, params._replace(track_min_curvature=np.float64(-1e9)), on)
+        _, curved = correct(state, with_values(params, {"tracking.min_curvature": np.float64(-1e9)}), on)
         np.testing.assert_allclose(np.asarray(curved), np.asarray(free), atol=1e-9)
 
 
@@ -306,31 +306,34 @@ def test_gmapping_correction_moves_only_along_constrained_directions(sim):
 
         off = dataclasses.replace(config, constrain_matches=False)
         free, score, _ = correct(state, params, off)
-        assert float(score) > float(params.min_score)
+        assert float(score) > float(params.matcher.min_score)
         assert np.hypot(*(np.asarray(free) - proposal)[:2]) > 1e-3
         on = dataclasses.replace(config, constrain_matches=True)
-        flat = correct(state, params._replace(track_min_curvature=np.float64(1e9)), on)[0]
+        flat = correct(state, with_values(params, {"tracking.min_curvature": np.float64(1e9)}), on)[0]
         np.testing.assert_allclose(np.asarray(flat)[:2], proposal[:2], atol=1e-12)
         np.testing.assert_allclose(float(flat[2]), float(free[2]), atol=1e-12)
-        curved = correct(state, params._replace(track_min_curvature=np.float64(-1e9)), on)[0]
+        curved = correct(state, with_values(params, {"tracking.min_curvature": np.float64(-1e9)}), on)[0]
         np.testing.assert_allclose(np.asarray(curved), np.asarray(free), atol=1e-9)
     # The defaults: on for SRUPF-GM, GMapping's own correction for the GMapping-style filter.
     layout = config.layout
-    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).constrain_matches
-    assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).constrain_matches
+    assert grid_algorithm("srupf-gm").make_config(2, layout, sim.num_beams, 4096).constrain_matches
+    assert not grid_algorithm("gmapping").make_config(2, layout, sim.num_beams, 4096).constrain_matches
     # The loop-closure search likewise: SRUPF-GM's default, not the GMapping-style filter's.
-    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).closure and closure_default("srupf-gm")
-    assert not make_config("gmapping", 2, layout, sim.num_beams, 4096).closure and not closure_default("gmapping")
+    assert grid_algorithm("srupf-gm").make_config(2, layout, sim.num_beams, 4096).closure
+    assert grid_algorithm("srupf-gm").config_default("closure")
+    assert not grid_algorithm("gmapping").make_config(2, layout, sim.num_beams, 4096).closure
+    assert not grid_algorithm("gmapping").config_default("closure")
     # The coarse-to-fine match: SRUPF-GM's default (four wide climbs), off for the others.
-    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).coarse_iterations == 4
-    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096, coarse_iterations=0).coarse_iterations == 0
-    assert make_config("gmapping", 2, layout, sim.num_beams, 4096).coarse_iterations == 0
-    assert make_config("srupf-gm-npc", 2, layout, sim.num_beams, 4096).coarse_iterations == 0
-    # The recovery from an odometry jump: SRUPF-GM's default (jaxslam.grid.experiment.recover_default),
+    assert grid_algorithm("srupf-gm").make_config(2, layout, sim.num_beams, 4096).coarse_iterations == 4
+    srupf_gm = grid_algorithm("srupf-gm")
+    assert srupf_gm.make_config(2, layout, sim.num_beams, 4096, coarse_iterations=0).coarse_iterations == 0
+    assert grid_algorithm("gmapping").make_config(2, layout, sim.num_beams, 4096).coarse_iterations == 0
+    assert grid_algorithm("srupf-gm-npc").make_config(2, layout, sim.num_beams, 4096).coarse_iterations == 0
+    # The recovery from an odometry jump: SRUPF-GM's default (jaxslam.grid.algorithms),
     # off for the others.
-    assert make_config("srupf-gm", 2, layout, sim.num_beams, 4096).recover_radius == RECOVER_RADIUS > 0
-    assert make_config("gmapping", 2, layout, sim.num_beams, 4096).recover_radius == 0.0
-    assert make_config("srupf-gm-npc", 2, layout, sim.num_beams, 4096).recover_radius == 0.0
+    assert grid_algorithm("srupf-gm").make_config(2, layout, sim.num_beams, 4096).recover_radius == RECOVER_RADIUS > 0
+    assert grid_algorithm("gmapping").make_config(2, layout, sim.num_beams, 4096).recover_radius == 0.0
+    assert grid_algorithm("srupf-gm-npc").make_config(2, layout, sim.num_beams, 4096).recover_radius == 0.0
 
 
 def test_keyframe_control_carries_the_tracked_noise_scale(sim):
@@ -349,9 +352,9 @@ def test_keyframe_control_carries_the_tracked_noise_scale(sim):
     step = jax.jit(per_scan(recording_keyframe_step), static_argnums=5)
     with jax.enable_x64(True):
         state, scans, params, config = state_and_scans(sim)
-        # track_refused_noise_scale off (negative) first: kappa after refused matches too.
-        params = params._replace(linear_update=np.float64(0.0), track_noise_scale=np.float64(0.25),
-                                 track_refused_noise_scale=np.float64(-1.0))
+        # tracking.refused_noise_scale off (negative) first: kappa after refused matches too.
+        params = with_values(params, {"keyframes.linear_update": np.float64(0.0), "tracking.noise_scale": np.float64(0.25),
+                                      "tracking.refused_noise_scale": np.float64(-1.0)})
         # The state's particles are at scan 0 with no motion tracked since.
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         control = Odometry(true_step, 1.0, 0.1)
@@ -366,12 +369,12 @@ def test_keyframe_control_carries_the_tracked_noise_scale(sim):
         new, _ = step(jax.random.PRNGKey(1), state, control, scans[3], params, off)
         np.testing.assert_allclose(np.asarray(new.log_weights), 1.0, rtol=1e-12)
 
-        # track_refused_noise_scale (negative: off): that scale for a keyframe whose
+        # tracking.refused_noise_scale (negative: off): that scale for a keyframe whose
         # interval holds a refused match, kappa otherwise. SRUPF-GM's default is 0.5,
         # the others' off.
-        assert float(default_params(sim.angles).track_refused_noise_scale) == 0.5
-        assert float(default_params(sim.angles, algorithm="gmapping").track_refused_noise_scale) < 0
-        wide = params._replace(track_refused_noise_scale=np.float64(1.0))
+        assert float(grid_algorithm("srupf-gm").make_params(sim.angles).tracking.refused_noise_scale) == 0.5
+        assert float(grid_algorithm("gmapping").make_params(sim.angles).tracking.refused_noise_scale) < 0
+        wide = with_values(params, {"tracking.refused_noise_scale": np.float64(1.0)})
         new, info = step(jax.random.PRNGKey(1), state, control, scans[3], wide, config)
         assert bool(info.track_accepted)
         np.testing.assert_allclose(np.asarray(new.log_weights), 0.25, rtol=1e-12)
@@ -379,8 +382,7 @@ def test_keyframe_control_carries_the_tracked_noise_scale(sim):
         assert not bool(info.track_accepted)
         np.testing.assert_allclose(np.asarray(new.log_weights), 1.0, rtol=1e-12)
         # The count runs between keyframes: a refused scan that is not a keyframe ...
-        never = wide._replace(linear_update=np.float64(1e9), angular_update=np.float64(1e9),
-                              temporal_update=np.float64(-1.0))
+        never = with_values(wide, {"keyframes.linear_update": np.float64(1e9), "keyframes.angular_update": np.float64(1e9), "keyframes.temporal_update": np.float64(-1.0)})
         between, info = step(jax.random.PRNGKey(1), state, control, junk, never, config)
         assert not bool(info.track_accepted)
         np.testing.assert_allclose(np.asarray(between.since_keyframe)[3:], [1.0, 1.0])
@@ -405,7 +407,7 @@ def test_tracking_finds_a_turn_beyond_the_hill_climbs_reach(sim):
     with jax.enable_x64(True):
         state, scans, params, default = state_and_scans(sim)
         config = dataclasses.replace(default, coarse_iterations=0)  # the hill climb alone, no coarse stage
-        plain = params._replace(track_turn=np.float64(0.0))
+        plain = with_values(params, {"tracking.turn": np.float64(0.0)})
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         for miss in (0.15, -0.15):
             wrong = true_step + np.array([0.0, 0.0, miss])
