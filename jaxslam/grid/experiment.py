@@ -10,7 +10,13 @@ bar (:func:`jaxslam.grid.driver.run_filter`; compile time is reported apart), re
 the best particle's path (largest accumulated log-likelihood, as GMapping) and gives
 the filter's own pose for every scan: the lineage's keyframe pose composed with the
 tracked motion since (:func:`jaxslam.grid.tracking.scan_trajectory`). The map frame is
-the odometry frame: the filter starts at the first scan's odometry pose.
+the odometry frame: the filter starts at the first scan's odometry pose, or, continuing
+a saved map (``start_map``), at ``initial_pose`` in that map's frame.
+
+One module, a little over the usual length: :func:`run_grid_slam` is the one place
+where a log becomes the filter's inputs (keyframe rule, range rule, layout, ray
+budget, start map) and its outputs become a result (best lineage, undone closures,
+the per-scan path), and each half reads the other's intermediate arrays.
 """
 
 from __future__ import annotations

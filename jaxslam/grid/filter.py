@@ -19,6 +19,10 @@ host grows the maps and repeats the step (:func:`jaxslam.grid.driver.run_filter`
 Best particle: the particle with the largest accumulated log-likelihood
 (GMapping's ``weightSum``), :func:`jaxslam.runtime.driver.best_particle`, the meaning both
 filter families share (see :mod:`jaxslam.runtime.driver`).
+
+One module, at the usual length's edge: what both filters' steps share (the
+proposal's scoring, the weights, the map update, resampling and ``init``) is kept
+together so that neither filter can drift from the other in one of those parts.
 """
 
 from __future__ import annotations

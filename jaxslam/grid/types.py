@@ -7,6 +7,11 @@ log-weight, GMapping's accumulated log-likelihood (to pick the best particle, as
 consumes an odometry increment (control, :class:`Odometry`) and one laser scan
 (observation, :class:`Scan`); the shared parts of the step are in
 :mod:`jaxslam.grid.filter`.
+
+One module, over the usual length, because the params tree, its defaults and the
+parameter specs that ``--set``, ``--list-params`` and the documentation read from are
+one source: a part's fields, its defaults and the units and meanings of its leaves sit
+side by side, so that none of them can drift from the others.
 """
 
 from __future__ import annotations
