@@ -67,10 +67,16 @@ def defaults(algorithm: str) -> dict[str, str]:
 def typed(value: float) -> str:
     """``value`` as one would type it: the shortest text that reads back as the same
     float32 (the dtype the filters run in by default): ``0.05``, ``20``, ``-1e+09``,
-    ``0.05235988`` for 3 degrees in radians."""
+    ``0.05235988`` for 3 degrees in radians. Between 1e-4 and 1e6 the digits are written
+    out (``20``, not ``2e+01``)."""
     target = np.float32(value)
-    return next(text for text in (f"{value:.{digits}g}" for digits in range(1, 18))
-                if np.float32(float(text)) == target)
+    for digits in range(1, 18):
+        text = f"{value:.{digits}g}"
+        if np.float32(float(text)) == target:
+            if "e" in text and 1e-4 <= abs(float(text)) < 1e6:
+                return np.format_float_positional(float(text), trim="-")
+            return text
+    return repr(float(value))
 
 
 def parameter_reference() -> list[ParamRow]:

@@ -40,6 +40,16 @@ def test_each_default_reads_back_and_is_allowed(algorithm):
         assert params.check_value(algorithm, name, exact) == name
 
 
+@given(st.floats(min_value=-1e12, max_value=1e12, allow_nan=False))
+def test_a_value_is_shown_as_typed_and_reads_back(value):
+    """The shortest text that reads back as the same float32, with the digits written
+    out between 1e-4 and 1e6 (``20``, not ``2e+01``)."""
+    text = params.typed(value)
+    assert np.float32(float(text)) == np.float32(value)
+    if 1e-4 <= abs(value) < 1e6:
+        assert "e" not in text, text
+
+
 @pytest.mark.parametrize("algorithm", sorted(ALGORITHMS))
 def test_every_scalar_field_is_specified(algorithm):
     values = _params_defaults(algorithm)
