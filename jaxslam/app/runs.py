@@ -20,7 +20,6 @@ layout with it.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -28,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from jaxslam.runtime.compiler import cpus_allowed, set_threads
+from jaxslam.datasets.carmen import scan_range
 from jaxslam.datasets.registry import DEFAULT_ALGORITHM, algorithms
 from jaxslam.app.data import bag_options, is_bag, kind_of, load_checked_log, resolve_dataset
 from jaxslam.app.errors import RunError
@@ -155,7 +155,7 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
         start = {"start_map": start_map, "initial_pose": initial_pose}
         if localize_first:
             first, start["initial_pose"], localized = localized_start(log, start_map, seed)
-            log = from_scan(log, first)
+            log = scan_range(log, first)
     live = None
     if viz is not None:
         live = _grid_live_log(viz, log, chunk)
@@ -259,21 +259,6 @@ def localized_start(log, grid, seed: int, particles: int = LOCALIZE_PARTICLES, s
     report = {"particles": particles, "converged_scan": int(first), "start_scan": scan,
               "rule": {"spread_m": 0.5, "cluster_weight": 0.9, "hold": 10}, "wall_s": result.wall_s}
     return scan, result.trajectory[scan], report
-
-
-PER_LOG_ARRAYS = ("angles", "odom_times", "odom_readings", "laser_offset")
-
-
-def from_scan(log, first: int):
-    """The log from scan ``first`` on (every per-scan array cut; a log dataclass)."""
-    scans = np.asarray(log.ranges).shape[0]
-    cut = {}
-    for item in dataclasses.fields(log):
-        value = getattr(log, item.name)
-        if item.name not in PER_LOG_ARRAYS and isinstance(value, np.ndarray) and value.ndim and \
-                value.shape[0] == scans:
-            cut[item.name] = value[first:]
-    return dataclasses.replace(log, **cut)
 
 
 # --------------------------------------------------------------------------- live view (Rerun)

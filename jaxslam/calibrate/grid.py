@@ -232,18 +232,6 @@ def log_likelihoods(
     return increments, carry.state.status.code
 
 
-PER_SCAN_FIELDS = ("scan_times", "logger_times", "scan_lines", "ranges", "valid", "max_range_mask", "angle_offsets",
-                   "odom_poses", "laser_poses", "true_poses")
-
-
-def window_log(log: Any, scans: int) -> Any:
-    """The first ``scans`` scans of a CARMEN log (the per-scan arrays cut)."""
-    import dataclasses
-
-    cut = {f: getattr(log, f)[:scans] for f in PER_SCAN_FIELDS if getattr(log, f, None) is not None}
-    return dataclasses.replace(log, **cut)
-
-
 def window_inputs(log: Any, scans: int, dtype: Any = jnp.float32) -> Inputs:
     """The first ``scans`` scans of a CARMEN log as :func:`log_likelihoods` takes them,
     built as :func:`jaxslam.grid.experiment.run_grid_slam` builds them."""
@@ -325,6 +313,7 @@ def calibrate_grid(
     import dataclasses
 
     from jaxslam.calibrate.fit import CalibrationResult, ascend, select_iterate, split_window
+    from jaxslam.datasets.carmen import scan_range
     from jaxslam.grid.experiment import run_grid_slam
     from jaxslam.grid.range_rule import apply_range_rule
     from jaxslam.grid.algorithms import grid_algorithm
@@ -342,7 +331,7 @@ def calibrate_grid(
     val_particles = validation_particles or particles
     # The layout (and ray budget) of the filter's own run on the window, pool doubled
     # for other noise levels and seeds.
-    reference = run_grid_slam(window_log(log, window), "srupf-gm", particles=max(particles, val_particles),
+    reference = run_grid_slam(scan_range(log, 0, window), "srupf-gm", particles=max(particles, val_particles),
                               seed=seed, params=overrides, config=config, progress=False, dtype=dtype)
     layout = dataclasses.replace(reference.config.layout, slots=2 * reference.config.layout.slots)
     cfg = dataclasses.replace(reference.config, layout=layout, num_particles=particles)

@@ -84,7 +84,9 @@ __all__ = [
     "DEFAULT_FLASER_MAX_RANGE",
     "detect_no_return",
     "guess_angular_resolution",
+    "PER_SCAN_FIELDS",
     "load_carmen",
+    "scan_range",
     "select_keyframes",
 ]
 
@@ -187,6 +189,19 @@ class CarmenLog:
     def beam_angles(self) -> np.ndarray:
         """(S, B) float32 angle of every beam of every scan in the laser frame."""
         return self.angles[None, :] + self.angle_offsets[:, None]
+
+PER_SCAN_FIELDS = ("scan_times", "logger_times", "scan_lines", "ranges", "valid", "max_range_mask", "angle_offsets",
+                   "odom_poses", "laser_poses", "true_poses")
+"""The arrays of a laser log with one row per scan (``true_poses``: the simulator's);
+the others are the log's (beam angles, laser mount) or its ODOM messages'."""
+
+
+def scan_range(log: Any, start: int = 0, stop: int | None = None) -> Any:
+    """The log's scans ``start:stop``: every per-scan array (:data:`PER_SCAN_FIELDS`)
+    cut, the per-log arrays and the ODOM messages kept as they are."""
+    cut = {f: getattr(log, f)[start:stop] for f in PER_SCAN_FIELDS if getattr(log, f, None) is not None}
+    return dataclasses.replace(log, **cut)
+
 
 def load_carmen(
     path: os.PathLike | str,

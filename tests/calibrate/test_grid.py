@@ -12,6 +12,7 @@ import pytest
 
 from jaxslam.calibrate import grid as G
 from jaxslam.app.cli import main
+from jaxslam.datasets.carmen import scan_range
 from jaxslam.datasets.laser_sim import simulate
 from jaxslam.grid import srupf
 from jaxslam.grid.experiment import run_grid_slam
@@ -31,7 +32,7 @@ def setup():
     # gradient programs it costs these tests about 40 s. (The slow
     # test_calibrate_srupf_then_run_with_params calibrates with the default
     # configuration, search included.)
-    reference = run_grid_slam(G.window_log(log, SCANS), "srupf-gm", particles=PARTICLES, seed=0, progress=False,
+    reference = run_grid_slam(scan_range(log, 0, SCANS), "srupf-gm", particles=PARTICLES, seed=0, progress=False,
                               params=KEYFRAMES, config={"match_iterations": 6, "closure": False})
     params = grid_algorithm("srupf-gm").make_params(log.angles, log.laser_offset, values=KEYFRAMES)
     inputs = jax.tree_util.tree_map(jnp.asarray, G.window_inputs(log, SCANS))

@@ -153,11 +153,11 @@ def test_a_simulated_map_continued_on_its_log_stays_on_the_saved_path(tmp_path):
 
 
 def test_a_log_cut_from_a_scan_keeps_every_per_scan_array_in_step():
-    from jaxslam.app.runs import from_scan
+    from jaxslam.datasets.carmen import scan_range
     from jaxslam.datasets.laser_sim import simulate
 
     log = simulate(width=6.0, height=4.0, rooms_x=1, laps=0.2, num_beams=31, seed=1)
-    cut = from_scan(log, 5)
+    cut = scan_range(log, 5)
     scans = log.ranges.shape[0]
     assert cut.ranges.shape[0] == scans - 5
     np.testing.assert_array_equal(cut.scan_times, log.scan_times[5:])
