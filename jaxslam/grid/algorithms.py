@@ -9,31 +9,23 @@ parts' defaults. Each such default is stated here once; nothing else in the libr
 asks which algorithm runs.
 
 SRUPF-GM's keyframe rule is GMapping's (:class:`~jaxslam.grid.types.KeyframeParams`),
-but a keyframe every 0.5 m of tracked travel instead of every metre
-(:func:`jaxslam.grid.tracking.is_keyframe`). With 1 m, SRUPF-GM failed 2 of 30 whole
-Intel runs (a relation off by more than 1 m) and 6 of 100 runs of Intel's last 2623
-scans from one filter state (``benchmarks/grid_stress.py``): keyframe corrections of
-0.1-0.3 m along the narrow corridor south of the interior rooms, new ground whose
-walls the maps held from keyframes a metre apart. With 0.5 m: none of 100 such runs
-and none of 30 whole runs failed, MIT Killian scored 1.01-1.50 m against 1.52-2.06 m
-(seeds 0-2), FR079 0.037-0.038 m against 0.034-0.035 m, the perturbed logs as before
-or better but for one Seattle seed (0.144 against 0.062 m), and a run takes about a
-third longer. Stressed from four filter states that its own parameters made
-(``--own-base``), 0.5 m failed 1 of 80 runs, 1 m 4 of 80. The GMapping-style filter
-keeps GMapping's rule: with 0.5 m it failed 3 of 10 whole Intel runs against 2, and 16
-of 120 stressed runs from its own states against 5 of 120.
+but with a keyframe every 0.5 m of tracked travel instead of every metre
+(:func:`jaxslam.grid.tracking.is_keyframe`): its keyframe correction moves the
+position, and in narrow corridors entered for the first time the walls drawn from
+keyframes a metre apart are too sparse to hold that correction, so half the spacing
+trades about a third more run time for fewer keyframe slides. The GMapping-style
+filter keeps GMapping's own rule, as the baseline it is.
 
 SRUPF-GM alone runs the coarse-to-fine match (``coarse_iterations`` 4,
 :func:`jaxslam.grid.filter.coarse_start`), the recovery from odometry jumps
 (``recover_radius``, :data:`jaxslam.grid.recovery.RECOVER_RADIUS`) and its wider
 proposals after refused matches (``tracking.refused_noise_scale`` 0.5,
-:func:`jaxslam.grid.tracking.keyframe_noise_scale`), measured together over the whole
-robustness suite (``benchmarks/grid_robustness.py``); the other filters were not
-measured with them. Both SRUPF-GM variants run the loop-closure search
+:func:`jaxslam.grid.tracking.keyframe_noise_scale`); the design notes
+(``docs/design.md``) have the tables with and without each, reproduced by
+``benchmarks/grid_robustness.py``. Both SRUPF-GM variants run the loop-closure search
 (:mod:`jaxslam.grid.closure`) and the constrained keyframe correction; the
 GMapping-style filter, a baseline for GMapping, which has neither, runs them only when
-asked (measured over the robustness suite: see :mod:`jaxslam.grid.closure` and
-:mod:`jaxslam.grid.gmapping`).
+asked.
 """
 
 from __future__ import annotations
