@@ -61,7 +61,7 @@ STAGES = {"XLA compilation": "xla_s", "tracing": "trace_s", "jaxpr to MLIR modul
 """JAX's compile-log stages and the row keys they are summed into."""
 
 RUNNER = "run_chunk"
-"""The chunk runner's function name (`run_chunk` in :func:`jaxslam.runtime.progress.make_chunk_runner`)."""
+"""The chunk runner's function name (`run_chunk` in :func:`jaxslam.runtime.driver.chunk_runner`)."""
 
 _CHILD = r'''
 import json, logging, resource, sys, time

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from jaxslam.runtime import driver
+from jaxslam.runtime.compiler import options_key
 from jaxslam.datasets.landmark_sim import simulate as simulate_landmarks
 from jaxslam.datasets.laser_sim import simulate as simulate_laser
 from jaxslam.feature import filter as feature_filter
@@ -133,16 +134,14 @@ def test_grid_cli_path_compiles_once_per_config(sim_log, algorithm):
     kw = dict(particles=3, progress=False, linear_update=0.5, angular_update=0.3, max_keyframes=17, chunk=8,
               config={"match_iterations": 3}, margin=10.0, pool_slots=512)
     first = run_grid_slam(sim_log, algorithm, seed=0, **kw)
-    runner = grid_driver.chunk_runner(GRID_STEPS[algorithm], first.config)
+    runner = driver.chunk_runner(GRID_STEPS[algorithm], first.config, grid_driver.summarise, options_key())
     compiled = runner._cache_size()
     second = run_grid_slam(sim_log, algorithm, seed=1, params={
         "gmapping.srr": 0.05, "srupf.q_linear": 0.03, "map.l_occ": 5.0, "weights.resample_threshold": 0.3,
         "sensor.usable_range": 12.0}, **kw)
     assert second.config == first.config
-    assert grid_driver.chunk_runner(GRID_STEPS[algorithm], second.config) is runner
-    # the shared driver's runner, with the grid programs' XLA options (jaxslam.runtime.compiler)
-    assert runner is driver.chunk_runner(GRID_STEPS[algorithm], first.config, grid_driver.summarise,
-                                         grid_driver.compiler_options())
+    # the one cached runner of (step, config, summary, the grid programs' XLA options)
+    assert driver.chunk_runner(GRID_STEPS[algorithm], second.config, grid_driver.summarise, options_key()) is runner
     assert runner._cache_size() == compiled
     assert not np.array_equal(first.trajectory, second.trajectory)
     for info in (first.info, second.info):

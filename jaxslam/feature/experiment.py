@@ -152,8 +152,8 @@ def run_landmark_slam(
     )
     extra = {} if checkpoint is None else {"checkpoint": checkpoint}
     (state, _), infos, timing = run_scan_chunked(
-        None, (state, params_arr), xs, chunk=chunk, desc=algorithm, progress=progress,
-        runner=chunk_runner(feature_filter.step, cfg), callback=callback, callback_every=callback_every, **extra,
+        chunk_runner(feature_filter.step, cfg), (state, params_arr), xs, chunk=chunk, desc=algorithm,
+        progress=progress, callback=callback, callback_every=callback_every, **extra,
     )
     state = jax.tree_util.tree_map(np.asarray, state)
     info = {name: np.asarray(value) for name, value in infos._asdict().items()}

@@ -1,12 +1,14 @@
-"""One driver for the grid filters: keys, jit policy, chunked runs and map growth.
+"""What the grid filters add to the shared driver: the summary of a step, and map growth.
 
 * The filters' ``run`` is :func:`jaxslam.runtime.driver.scan_runner` of their ``step``, the
   driver shared with the landmark filter (one key per keyframe from
   :func:`jaxslam.runtime.driver.step_keys`, the one way step keys are derived; the host loop
   makes the same bits with :func:`jaxslam.runtime.keys.split_keys`).
 * :func:`run_filter` — the host loop used by :func:`jaxslam.grid.experiment.run_grid_slam`,
-  the CLI, the notebooks and the benchmarks: ``init`` (jitted), then the keyframes
-  in jitted chunks with a progress bar (:func:`jaxslam.runtime.progress.run_scan_chunked`).
+  the CLI, the notebooks and the benchmarks: ``init`` (jitted), then the steps through
+  the shared chunk runner (:func:`jaxslam.runtime.driver.chunk_runner` of the step,
+  keeping :func:`summarise` of each, compiled with jaxslam's XLA options) and its host
+  loop with a progress bar (:func:`jaxslam.runtime.progress.run_scan_chunked`).
   The chunk runner is cached per (filter, static config), so a sweep over
   ``Params`` or a second run with the same shapes never recompiles. When a step
   is refused because the paged maps are full (:mod:`jaxslam.grid.paged`), the
@@ -26,8 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.runtime.compiler import jit_with, options
-from jaxslam.runtime.driver import chunk_runner as shared_chunk_runner
+from jaxslam.runtime.compiler import jit_with, options_key
+from jaxslam.runtime.driver import chunk_runner
 from jaxslam.runtime.executables import compile_runner, runner_tag
 from jaxslam.grid.filter import init, reset_status
 from jaxslam.grid.paged import PagedLayout, grow
@@ -67,13 +69,6 @@ def summarise(info) -> dict[str, Any]:
     }
 
 
-def chunk_runner(step_fn, config: GridSlamConfig):
-    """The jitted chunk runner of ``step_fn`` under ``config``, keeping :func:`summarise`
-    of each step (cached: one per static config; :func:`jaxslam.runtime.driver.chunk_runner`),
-    compiled with jaxslam's XLA options (:mod:`jaxslam.runtime.compiler`)."""
-    return shared_chunk_runner(step_fn, config, summarise, compiler_options())
-
-
 @dataclass
 class RunStats:
     """How the maps grew during a run, its times, and the XLA options its programs
@@ -93,12 +88,6 @@ def recompilations(growths: list[dict[str, Any]]) -> int:
     """Growths that changed the layout and so recompiled (a moved page table keeps the
     program; each growth's ``recompiled`` says which)."""
     return sum(1 for g in growths if g["recompiled"])
-
-
-def compiler_options() -> tuple:
-    """jaxslam's XLA options for the grid programs (:func:`jaxslam.runtime.compiler.options`),
-    as sorted ``(name, value)`` pairs (a cache key)."""
-    return tuple(sorted(options().items()))
 
 
 def layout_json(layout: PagedLayout) -> dict[str, Any]:
@@ -133,7 +122,7 @@ def _init(key, params, config: GridSlamConfig, first_scan, initial_pose):
     """``init``, its lowered program kept on disk like the chunk runner's
     (:mod:`jaxslam.runtime.executables`): a warm run does not trace it."""
     args = (key, params, first_scan, initial_pose)
-    runner = _init_runner(config, compiler_options())
+    runner = _init_runner(config, options_key())
     return compile_runner(runner, *args)[0](*args)
 
 
@@ -205,11 +194,11 @@ def run_filter(
     while True:
         if checkpoint is not None:
             checkpoint.static = {"layout": layout_json(config.layout)}
-        runner = chunk_runner(step_fn, config)
+        runner = chunk_runner(step_fn, config, summarise, options_key())
         stats.compiler_options = dict(runner.jaxslam_compiler_options)  # what the run was compiled with
         (state, params), ys, timing = run_scan_chunked(
-            None, (state, params), xs, chunk=chunk, desc=desc, unit=unit, progress=progress,
-            runner=runner, checkpoint=checkpoint, start=start,
+            runner, (state, params), xs, chunk=chunk, desc=desc, unit=unit, progress=progress,
+            checkpoint=checkpoint, start=start,
             stop=lambda carry: int(carry[0].status.code) != 0, prior=prior,
         )
         if checkpoint is not None:
@@ -229,7 +218,6 @@ def run_filter(
 __all__ = [
     "DEFAULT_CHUNK",
     "RunStats",
-    "chunk_runner",
     "init_state",
     "layout_json",
     "recompilations",

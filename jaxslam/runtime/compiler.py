@@ -5,7 +5,8 @@ The grid filters' programs that jaxslam compiles and runs itself (the chunk runn
 of :func:`jaxslam.grid.driver.run_filter`, which every CLI run, benchmark and notebook
 goes through, the ``init`` program, the streaming step and the grid calibration's
 objectives) are compiled with :func:`options`, through :func:`jit` (``jax.jit`` with
-``compiler_options``) or :func:`jaxslam.runtime.driver.chunk_runner`. Today that is two
+``compiler_options``) or :func:`jaxslam.runtime.driver.chunk_runner` (given
+:func:`options_key`). Today that is two
 options:
 
 * ``xla_cpu_use_fusion_emitters = False``. XLA's CPU backend can emit the loops of
@@ -60,7 +61,7 @@ OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False, "xla_cpu_parall
 
 __all__ = [
     "ENV_VAR", "OPTIONS", "THREADS_ENV", "auto_threads", "compile_environment", "cpus_allowed", "jit", "jit_with",
-    "options", "set_threads", "thread_pool",
+    "options", "options_key", "set_threads", "thread_pool",
 ]
 
 
@@ -74,6 +75,12 @@ def options() -> dict[str, Any]:
         raise ValueError(f"{ENV_VAR} must be 'jaxslam' (the default) or 'xla', got {choice!r}")
     flags = os.environ.get("XLA_FLAGS", "")
     return {name: value for name, value in OPTIONS.items() if f"--{name}" not in flags}
+
+
+def options_key() -> tuple:
+    """:func:`options` as sorted ``(name, value)`` pairs: hashable, the form in which
+    :func:`jaxslam.runtime.driver.chunk_runner` takes them (a cache key)."""
+    return tuple(sorted(options().items()))
 
 
 def jit_with(fun, compiler_options: dict[str, Any] | None, **kwargs):

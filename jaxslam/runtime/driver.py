@@ -31,9 +31,12 @@ values, with the config and params bound (:class:`jaxslam.base.ParticleFilter`,
 weight: right after a resampling every weight is equal and the argmax would be an
 arbitrary particle, and the grid filters temper their weights (``weight_gain``).
 
-**Runners.** :func:`chunk_runner` is the jitted chunk runner of a ``step`` under a
-static config, cached per ``(step, config, summary)``: the CLI, the notebooks and the
-benchmarks run through it, so a sweep over ``Params`` (traced) never recompiles. With
+**Runners.** :func:`chunk_runner` is the one jitted chunk runner of a ``step`` under
+a static config, cached per ``(step, config, summary, compiler options)``: every
+chunked run (the CLI, the notebooks and the benchmarks, the landmark and the grid
+filters alike, plain, checkpointed, resumed or viewed live) goes through it and the
+host loop :func:`jaxslam.runtime.progress.run_scan_chunked`, so a sweep over ``Params``
+(traced) never recompiles. With
 the compilation cache on, the compiled runner is also kept on disk
 (:mod:`jaxslam.runtime.executables`): a later process loads it without tracing.
 """
@@ -48,8 +51,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from jaxslam.runtime.compiler import jit_with
 from jaxslam.runtime.executables import runner_tag
-from jaxslam.runtime.progress import make_chunk_runner
 
 
 def step_keys(key: Array, num_steps: int) -> Array:
@@ -95,10 +98,23 @@ def scan_runner(step_fn):
 
 @functools.lru_cache(maxsize=32)
 def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None, compiler_options: tuple = ()):
-    """The jitted chunk runner of ``step_fn`` under ``config`` (cached: one per static
-    config). Its carry is ``(state, params)``, its inputs ``(key, control, observation)``
-    per step, its outputs ``summary(info)`` (``info`` itself by default);
-    ``compiler_options``: XLA's, as ``(name, value)`` pairs (:mod:`jaxslam.runtime.compiler`)."""
+    """The jitted chunk runner of ``step_fn`` under ``config``: one per
+    ``(step_fn, config, summary, compiler_options)`` (cached), so a sweep over the
+    params (traced) or a second run of the same shapes never retraces.
+
+    The runner is ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk of
+    steps (:func:`jaxslam.runtime.progress.run_scan_chunked` drives it): the carry is
+    ``(state, params)``, donated; ``xs_chunk`` the ``(key, control, observation)`` of
+    each step, stacked; ``valid`` (bool, the chunk's length) marks the steps to run, a
+    prefix (the outputs of the others are zeros); the outputs are ``summary(info)``
+    of each step (``info`` itself by default).
+
+    ``compiler_options``: XLA's, as ``(name, value)`` pairs
+    (:func:`jaxslam.runtime.compiler.options_key`; none by default), kept on the
+    runner as ``jaxslam_compiler_options`` for a program loaded from disk. The runner's
+    ``jaxslam_tag`` (:func:`jaxslam.runtime.executables.runner_tag`) names what besides
+    the arguments determines the program; with it the compiled runner is kept on disk
+    next to the compilation cache (:mod:`jaxslam.runtime.executables`)."""
 
     def body(carry, x):
         state, params = carry
@@ -106,9 +122,32 @@ def chunk_runner(step_fn, config, summary: Callable[[Any], Any] | None = None, c
         state, info = step_fn(key, state, control, observation, params, config)
         return (state, params), info if summary is None else summary(info)
 
-    return make_chunk_runner(
-        body, tag=runner_tag(step_fn, config, summary, donate=True), compiler_options=dict(compiler_options)
-    )
+    # Jitted so that it is traced once: ``eval_shape`` below and the loop body reuse
+    # the same trace (the step is the bulk of the tracing time of a run).
+    step_jit = jax.jit(body)
+
+    def run_chunk(carry, xs_chunk, valid):
+        # ``valid`` is a prefix: its steps run, in a loop of that many iterations, and
+        # the padding steps after it are not run at all (their outputs are zeros). A
+        # ``lax.cond`` per step would pass the carry through a skipped step, a copy of
+        # every map buffer.
+        x0 = jax.tree_util.tree_map(lambda leaf: leaf[0], xs_chunk)
+        y_shape = jax.eval_shape(step_jit, carry, x0)[1]
+        length = valid.shape[0]
+        ys = jax.tree_util.tree_map(lambda s: jnp.zeros((length, *s.shape), s.dtype), y_shape)
+
+        def body(i, c_ys):
+            c, ys = c_ys
+            x = jax.tree_util.tree_map(lambda leaf: jax.lax.dynamic_index_in_dim(leaf, i, keepdims=False), xs_chunk)
+            c, y = step_jit(c, x)
+            ys = jax.tree_util.tree_map(lambda buf, v: jax.lax.dynamic_update_index_in_dim(buf, v, i, 0), ys, y)
+            return c, ys
+
+        return jax.lax.fori_loop(0, jnp.sum(valid.astype(jnp.int32)), body, (carry, ys))
+
+    runner = jit_with(run_chunk, dict(compiler_options), donate_argnums=(0,))
+    runner.jaxslam_tag = runner_tag(step_fn, config, summary, donate=True)
+    return runner
 
 
 def best_particle(state) -> Array:

