@@ -28,6 +28,7 @@ from jax import Array
 from jax.scipy.special import logsumexp
 
 from jaxslam.core.numerics import normalize_log_weights
+from jaxslam.core.spec import choose
 
 Resampler = Callable[[Array, Array], Array]
 
@@ -117,15 +118,9 @@ RESAMPLERS: dict[str, Resampler] = {
 
 
 def get_resampler(method: str | Resampler) -> Resampler:
-    """A resampler by name (``systematic``, ``stratified``, ``multinomial``, ``residual``)."""
-    if callable(method):
-        return method
-    try:
-        return RESAMPLERS[method]
-    except KeyError:
-        raise ValueError(
-            f"unknown resampler {method!r}; choose one of {sorted(RESAMPLERS)}"
-        ) from None
+    """A resampler by name (``systematic``, ``stratified``, ``multinomial``, ``residual``),
+    or ``method`` itself when it is one."""
+    return choose(RESAMPLERS, method, "resampler")
 
 
 def selective_resample(

@@ -4,15 +4,27 @@ A :class:`ParamSpec` sits beside the defaults of a filter's ``Params``
 (:data:`jaxslam.grid.types.PARAMETER_SPECS`, :data:`jaxslam.feature.params.PARAMETER_SPECS`),
 so that a value given on the command line is refused, with its name, before anything
 is compiled, instead of turning into a NaN, a silently ignored setting or a map that
-looks plausible and is not.
+looks plausible and is not. A swappable part (a resampler, a matcher) is given as a
+function or by its name in a table (:func:`choose`), refused likewise when unknown.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, Callable, Mapping, NamedTuple
 
-__all__ = ["ParamSpec", "at_least", "fraction", "positive", "real"]
+__all__ = ["ParamSpec", "at_least", "choose", "fraction", "positive", "real"]
+
+
+def choose(table: Mapping[str, Callable[..., Any]], choice: str | Callable[..., Any], what: str) -> Callable[..., Any]:
+    """``choice`` itself when it is a function, else the function named ``choice`` in
+    ``table``; an unknown name is a ``ValueError`` naming ``what`` and the names known."""
+    if callable(choice):
+        return choice
+    try:
+        return table[choice]
+    except KeyError:
+        raise ValueError(f"unknown {what} {choice!r}; choose one of {sorted(table)}") from None
 
 
 class ParamSpec(NamedTuple):

@@ -44,6 +44,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxslam.core import se2
+from jaxslam.core.spec import choose
 from jaxslam.core.sqrt import tria
 
 ScoreFn = Callable[[Array], Array]
@@ -299,12 +300,8 @@ def search_bound(
 
 
 def get_matcher(name: str | Callable) -> Callable:
-    if callable(name):
-        return name
-    try:
-        return MATCHERS[name]
-    except KeyError:
-        raise ValueError(f"unknown matcher {name!r}; choose one of {sorted(MATCHERS)}") from None
+    """A matcher of :data:`MATCHERS` by name, or ``name`` itself when it is one."""
+    return choose(MATCHERS, name, "matcher")
 
 
 __all__ = [
