@@ -28,6 +28,7 @@ together so that neither filter can drift from the other in one of those parts.
 from __future__ import annotations
 
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -44,6 +45,7 @@ from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
 from jaxslam.grid.matching import Climb, EllipseBound, climbs_in_turn, get_matcher, gmapping_basis, hill_climb, search_bound
 from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn, scan_log_likelihood
 from jaxslam.grid.types import ClosureState, GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
+from jaxslam.grid.types import as_odometry
 from jaxslam.grid.update import update_paged
 
 
@@ -266,20 +268,38 @@ def init(
     return _init(key, params, config, observation, initial_pose, start)
 
 
+class ParticleUpdate(NamedTuple):
+    """What a keyframe's proposal gives for each particle (``(N, ...)`` over the
+    particles, or one particle's inside ``propose``, :func:`keyframe_update`).
+
+    Attributes:
+        map_poses: where the scan is written into the particle's map ``(N, 3)``.
+        next_poses: the particle's pose after the keyframe ``(N, 3)``.
+        next_sqrt_covs: its square-root pose covariance ``(N, 3, 3)``.
+        scores: the matching score, mean occupancy over the matched beams ``(N,)``.
+        log_likelihoods: ``log p(z | x, m)`` of the scan at ``map_poses`` ``(N,)``.
+        pd_ok: the square-root update stayed positive definite ``(N,)``.
+    """
+
+    map_poses: Array
+    next_poses: Array
+    next_sqrt_covs: Array
+    scores: Array
+    log_likelihoods: Array
+    pd_ok: Array
+
+
 def finish_step(
     key: Array,
     state: GridSlamState,
-    map_poses: Array,
-    next_poses: Array,
-    next_sqrt_covs: Array,
-    log_likelihoods: Array,
-    scores: Array,
-    pd_ok: Array,
+    update: ParticleUpdate,
     observation: Scan,
     params: GridSlamParams,
     config: GridSlamConfig,
 ) -> tuple[GridSlamState, GridSlamInfo]:
-    """Weights, map update at ``map_poses``, selective resampling (shared by filters)."""
+    """Weights, map update at ``update.map_poses``, selective resampling (shared by
+    filters)."""
+    map_poses, next_poses, next_sqrt_covs, scores, log_likelihoods, pd_ok = update
     log_weights = normalize_log_weights(state.log_weights + params.weights.gain * log_likelihoods)
     cumulative = state.cumulative_log_likelihood + log_likelihoods
     # A data dependency from every read of the maps (matching, likelihoods) to the
@@ -333,6 +353,43 @@ def finish_step(
         log_likelihood_increment=jnp.where(applied, increment, 0.0),
     )
     return new_state, info
+
+
+def keyframe_update(propose):
+    """The keyframe update of a grid filter whose particles move by ``propose``: a
+    ``step(key, state, control, observation, params, config) -> (State, Info)``.
+
+    ``propose(key, read, pose, sqrt_cov, control, local_points, mask, params, config)``
+    is one particle's part, with its own map (``read``), its pose and square-root
+    covariance, the :class:`~jaxslam.grid.types.Odometry` since the previous keyframe
+    and the scan's beams in the laser frame (:func:`match_geometry`); it returns a
+    :class:`ParticleUpdate` for :func:`finish_step`. Its nine arguments are the one
+    signature that every proposal shares (GMapping's, SRUPF-GM's, a user's own), so
+    that swapping it is one argument; none of them travels elsewhere as a group. The step splits its key into the particles' keys and the
+    resampling key, runs ``propose`` over the particles (``vmap``) and finishes with
+    the weights, the map update and the resampling."""
+
+    def step(
+        key: Array,
+        state: GridSlamState,
+        control,
+        observation: Scan,
+        params: GridSlamParams,
+        config: GridSlamConfig,
+    ) -> tuple[GridSlamState, GridSlamInfo]:
+        key_particles, key_resample = jax.random.split(key)
+        control = as_odometry(control)
+        keys = jax.random.split(key_particles, config.num_particles)
+        local_points, mask = match_geometry(observation, params, config)
+
+        def particle(k, table, pose, sqrt_cov):
+            read = particle_reader(state, table, config)
+            return propose(k, read, pose, sqrt_cov, control, local_points, mask, params, config)
+
+        update = jax.vmap(particle)(keys, state.maps.tables, state.poses, state.pose_sqrt_covs)
+        return finish_step(key_resample, state, update, observation, params, config)
+
+    return step
 
 
 def empty_info(state: GridSlamState, config: GridSlamConfig) -> GridSlamInfo:
@@ -394,6 +451,8 @@ __all__ = [
     "guard",
     "init",
     "integrate_scan",
+    "keyframe_update",
+    "ParticleUpdate",
     "match_geometry",
     "particle_reader",
     "reset_status",

@@ -27,9 +27,8 @@ from jax import Array
 
 from jaxslam.runtime.driver import scan_runner
 from jaxslam.runtime.executables import module_function
-from jaxslam.grid.filter import finish_step, guard, init, match_geometry, particle_reader, scan_likelihood, scan_score_fn
-from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Odometry, Scan
-from jaxslam.grid.types import as_odometry, noise_scale_of
+from jaxslam.grid.filter import ParticleUpdate, guard, init, keyframe_update, scan_likelihood, scan_score_fn
+from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, noise_scale_of
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.tracking import keyframe_match, per_scan
 from jaxslam.models.odometry import sample_gmapping
@@ -62,57 +61,38 @@ def correct_pose(
     )
 
 
-def _step(
+def propose(
     key: Array,
-    state: GridSlamState,
-    control: Odometry | Array,
-    observation: Scan,
+    read: CellReader,
+    pose: Array,
+    sqrt_cov: Array,
+    control: Odometry,
+    local_points: Array,
+    mask: Array,
     params: GridSlamParams,
     config: GridSlamConfig,
-) -> tuple[GridSlamState, GridSlamInfo]:
-    """One GMapping update for a keyframe.
+):
+    """One particle's GMapping proposal for a keyframe (the ``propose`` of
+    :func:`jaxslam.grid.filter.keyframe_update`): a draw from the srr/srt/str/stt
+    odometry model, scan-matched against its own map (:func:`correct_pose`). The noise
+    gains are divided by ``sqrt(control.substeps)`` and multiplied by its
+    ``noise_scale`` (tracked motion); the covariance is kept.
 
-    Args:
-        key: PRNG key for this step.
-        state: filter state.
-        control: :class:`~jaxslam.grid.types.Odometry` (or a bare ``(3,)`` increment) since the previous
-            keyframe; the noise gains are divided by ``sqrt(substeps)`` and
-            multiplied by its ``noise_scale`` (tracked motion).
-        observation: the keyframe's scan.
-        params: traced parameters.
-        config: static configuration.
+    Returns:
+        A :class:`~jaxslam.grid.filter.ParticleUpdate`: the map is updated at the
+        corrected pose and the particle moves there.
     """
-    key_motion, key_resample = jax.random.split(key)
-    n = config.num_particles
-    control = as_odometry(control)
-    dtype = state.poses.dtype
+    dtype = pose.dtype
     increment = control.increment.astype(dtype)
     scale = noise_scale_of(control, dtype) * jax.lax.rsqrt(jnp.maximum(jnp.asarray(control.substeps, dtype), 1.0))
-    keys = jax.random.split(key_motion, n)
-    local_points, mask = match_geometry(observation, params, config)
+    g = params.gmapping
+    proposal = sample_gmapping(key, pose, increment, scale * g.srr, scale * g.srt, scale * g.str, scale * g.stt)
+    corrected, score, log_lik = correct_pose(read, proposal, sqrt_cov, local_points, mask, params, config)
+    return ParticleUpdate(corrected, corrected, sqrt_cov, score, log_lik, jnp.asarray(True))
 
-    def particle(k, table, pose, sqrt_cov):
-        read = particle_reader(state, table, config)
-        proposal = sample_gmapping(
-            k, pose, increment, scale * params.gmapping.srr, scale * params.gmapping.srt, scale * params.gmapping.str,
-            scale * params.gmapping.stt
-        )
-        return correct_pose(read, proposal, sqrt_cov, local_points, mask, params, config)
 
-    poses, scores, log_liks = jax.vmap(particle)(keys, state.maps.tables, state.poses, state.pose_sqrt_covs)
-    return finish_step(
-        key_resample,
-        state,
-        poses,
-        poses,
-        state.pose_sqrt_covs,
-        log_liks,
-        scores,
-        jnp.ones((n,), bool),
-        observation,
-        params,
-        config,
-    )
+# One GMapping update for a keyframe.
+_step = keyframe_update(propose)
 
 
 # The filter's step, the one ``jaxslam run`` runs: every scan a step, tracked against
@@ -125,4 +105,4 @@ step = module_function(guard(per_scan(_step)), __name__, "step")
 run = scan_runner(step)
 
 
-__all__ = ["correct_pose", "init", "keyframe_run", "keyframe_step", "run", "step"]
+__all__ = ["correct_pose", "init", "keyframe_run", "keyframe_step", "propose", "run", "step"]

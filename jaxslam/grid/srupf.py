@@ -71,9 +71,8 @@ from jaxslam.core.sigma import UTParams
 from jaxslam.core.sqrt import chol_update, chol_update_many_checked, tria
 from jaxslam.runtime.driver import scan_runner
 from jaxslam.runtime.executables import module_function
-from jaxslam.grid.filter import finish_step, guard, init, match_geometry, particle_reader, scan_likelihood, scan_score_fn
-from jaxslam.grid.types import GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Odometry, Scan
-from jaxslam.grid.types import as_odometry, noise_scale_of
+from jaxslam.grid.filter import ParticleUpdate, guard, init, keyframe_update, scan_likelihood, scan_score_fn
+from jaxslam.grid.types import GridSlamConfig, GridSlamParams, Odometry, noise_scale_of
 from jaxslam.grid.map import CellReader
 from jaxslam.grid.tracking import keyframe_match, per_scan
 from jaxslam.models.odometry import (
@@ -148,7 +147,8 @@ def particle_update(
     config: GridSlamConfig,
     noise_scale: Array | float = 1.0,
 ):
-    """Algorithm 2 for one particle: returns ``(nu, next_pose, S, score, log_lik, pd_ok)``.
+    """Algorithm 2 for one particle: returns a :class:`~jaxslam.grid.filter.ParticleUpdate`
+    ``(nu, next_pose, S, score, log_lik, pd_ok)``.
 
     ``config.sampling`` places the random draw (see the module docstring):
     ``"prior"`` draws ``x ~ N(mu, S S^T)`` after the odometry update (eq. 9) and
@@ -182,47 +182,32 @@ def particle_update(
         next_pose = sample_pose(key_post, nu, update.sqrt_cov)
     else:
         next_pose = nu
-    return nu, next_pose, update.sqrt_cov, score / count, log_lik, update.pd_ok
+    return ParticleUpdate(nu, next_pose, update.sqrt_cov, score / count, log_lik, update.pd_ok)
 
 
-def _step(
+def propose(
     key: Array,
-    state: GridSlamState,
-    control: Odometry | Array,
-    observation: Scan,
+    read: CellReader,
+    pose: Array,
+    sqrt_cov: Array,
+    control: Odometry,
+    local_points: Array,
+    mask: Array,
     params: GridSlamParams,
     config: GridSlamConfig,
-) -> tuple[GridSlamState, GridSlamInfo]:
-    """One SRUPF-GM update (Algorithm 2) for a keyframe.
+):
+    """One particle's SRUPF-GM update (Algorithm 2) for a keyframe (the ``propose`` of
+    :func:`jaxslam.grid.filter.keyframe_update`): :func:`particle_update` with the
+    keyframe's increment. Q is per keyframe (``control.substeps`` is not used;
+    ``noise_scale`` multiplies Q's motion-proportional part); ``config.correction``
+    picks pc / npc."""
+    dtype = pose.dtype
+    return particle_update(key, read, pose, sqrt_cov, control.increment.astype(dtype), local_points, mask, params,
+                           config, noise_scale_of(control, dtype))
 
-    Args:
-        key: PRNG key for this step.
-        state: filter state.
-        control: :class:`~jaxslam.grid.types.Odometry` or a bare ``(3,)`` increment since the previous
-            keyframe (Q is per keyframe; ``substeps`` is not used; ``noise_scale``
-            multiplies Q's motion-proportional part).
-        observation: the keyframe's scan.
-        params: traced parameters.
-        config: static configuration (``config.correction`` picks pc / npc).
-    """
-    key_sample, key_resample = jax.random.split(key)
-    n = config.num_particles
-    control = as_odometry(control)
-    noise_scale = noise_scale_of(control, state.poses.dtype)
-    increment = control.increment.astype(state.poses.dtype)
-    keys = jax.random.split(key_sample, n)
-    local_points, mask = match_geometry(observation, params, config)
 
-    def particle(k, table, pose, sqrt_cov):
-        read = particle_reader(state, table, config)
-        return particle_update(k, read, pose, sqrt_cov, increment, local_points, mask, params, config, noise_scale)
-
-    nu, samples, sqrt_covs, scores, log_liks, ok = jax.vmap(particle)(
-        keys, state.maps.tables, state.poses, state.pose_sqrt_covs
-    )
-    return finish_step(
-        key_resample, state, nu, samples, sqrt_covs, log_liks, scores, ok, observation, params, config
-    )
+# One SRUPF-GM update (Algorithm 2) for a keyframe.
+_step = keyframe_update(propose)
 
 
 # The filter's step, the one ``jaxslam run`` runs: every scan a step, tracked against
@@ -236,6 +221,7 @@ run = scan_runner(step)
 
 
 __all__ = [
-    "MeasurementUpdate", "best_sigma_point", "init", "keyframe_run", "keyframe_step", "particle_update", "predict", "run",
+    "MeasurementUpdate", "best_sigma_point", "init", "keyframe_run", "keyframe_step", "particle_update", "predict",
+    "propose", "run",
     "sqrt_measurement_update", "step",
 ]
