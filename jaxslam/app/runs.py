@@ -84,7 +84,8 @@ def run_landmark(info, algorithm, particles, seed, out, max_steps, overrides, pr
     """Run a landmark filter on ``info``'s sequence and score it: ``(summary, arrays,
     write_files)``, the figures' data (:func:`jaxslam.app.outputs.landmark_arrays`) and a
     function that writes the run's files. ``prefetch``: import the plotting module on
-    a thread once the data is loaded."""
+    a thread once the data is loaded. The other arguments are :func:`run`'s options
+    that a landmark run uses, passed on by name."""
     from jaxslam.feature.experiment import run_landmark_slam
     from jaxslam.metrics.scoring import score_landmark_run
     from jaxslam.app.outputs import landmark_arrays, write_landmark_outputs
@@ -136,7 +137,8 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
     """Run a grid filter on a laser log and score it: ``(summary, arrays, write_files)``,
     the figures' data (:func:`jaxslam.app.outputs.grid_arrays`) and a function that writes
     the run's files. ``prefetch``: import the plotting module on a thread once the log
-    is loaded."""
+    is loaded. The other arguments are :func:`run`'s options that a grid run uses,
+    passed on by name."""
     from jaxslam.grid import experiment as grid_experiment
     from jaxslam.grid.paged import PoolLimitError
     from jaxslam.metrics.scoring import score_grid_run
@@ -316,6 +318,11 @@ def run(
     localize_first: bool = False,
 ) -> dict[str, Any]:
     """Run one filter and write its output folder; returns the summary dict.
+
+    The keywords are the options of ``jaxslam run``, one for one: ``run.json``
+    records them by name and ``--resume`` calls this function with them again
+    (:func:`jaxslam.app.cli.saved_arguments` reads this signature), so they stay
+    flat rather than grouped.
 
     ``start_map`` (grid filters): a saved map (a run folder, ``map.npz`` or a
     ``map_server`` YAML, :func:`jaxslam.grid.mapfile.load_map`) that every particle

@@ -230,6 +230,10 @@ def calibrate(
     noise levels and keep the iterate that does best on held-out scans (see the module
     docstring).
 
+    The keywords are ``jaxslam calibrate``'s options one for one; the grid calibration
+    (:func:`jaxslam.calibrate.grid.calibrate_grid`) takes the same names with other
+    defaults (fewer particles and steps for its costlier filter).
+
     Args:
         sequence: landmark sequence (Victoria Park or the simulator).
         algorithm: ``erb-upf`` or ``rb-upf``.

@@ -95,6 +95,9 @@ def simulate(
 ) -> LandmarkSequence:
     """Simulate ``num_steps`` scans of a car lapping a circle of ``radius`` m.
 
+    Each keyword is one knob of the world, the path, the sensor or the noise, with a
+    default; tests and benchmarks change one or two at a time.
+
     The path is the circle through the origin centred at ``(0, radius)``; the car
     starts at the origin heading along +x (counter-clockwise laps). ``geometry`` is
     ``(L, H, A, B)`` as in :class:`jaxslam.models.vehicle.CarGeometry`.

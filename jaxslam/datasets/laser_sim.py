@@ -206,6 +206,9 @@ def simulate(
 ) -> SimulatedLog:
     """Simulate a robot driving the ring corridor of :func:`office_world`.
 
+    Each keyword is one knob of the world, the path, the laser or the odometry noise,
+    with a default; tests and benchmarks change one or two at a time.
+
     Args:
         width, height, corridor, rooms_x: world layout (m, count).
         laps: laps of the ring (> 1 closes the loop).

@@ -117,6 +117,9 @@ def run_landmark_slam(
 ) -> LandmarkSlamResult:
     """Run RB-UPF or ERB-UPF over a whole sequence.
 
+    The keywords are independent choices of one run, each with a default (the Python
+    face of ``jaxslam run``'s options for landmark data).
+
     Args:
         sequence: Victoria Park or simulator sequence.
         algorithm: ``"erb-upf"`` or ``"rb-upf"``.

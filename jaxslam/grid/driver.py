@@ -171,6 +171,10 @@ def run_filter(
     """Run a grid filter over steps 1..T (keyframes, or every scan with a per-scan
     step; step 0 is ``first_scan``).
 
+    The positional arguments are the filter's (its ``step``, key, params, config and
+    inputs, as for ``init`` and ``run``); the keywords are the host loop's
+    (:func:`jaxslam.runtime.progress.run_scan_chunked`), passed on.
+
     Returns:
         ``(state, ys, config, stats)``: the final state, the stacked
         :func:`summarise` outputs of every step, the config with the final layout

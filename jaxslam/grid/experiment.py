@@ -240,6 +240,10 @@ def run_grid_slam(
 ) -> GridSlamResult:
     """Run ``algorithm`` on a log and collect trajectory, map and diagnostics.
 
+    The keywords are independent choices of one run, each with a default that suits
+    every log (the Python face of ``jaxslam run``'s options); a caller changes one or
+    two of them, which keywords keep readable.
+
     Args:
         log_or_sim: a :class:`~jaxslam.datasets.carmen.CarmenLog` (or
             :class:`~jaxslam.datasets.laser_sim.SimulatedLog`), a dataset name known to

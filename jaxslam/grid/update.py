@@ -222,6 +222,10 @@ def update_paged(
 ) -> tuple[PagedMaps, Array, MapStatus]:
     """Integrate one scan into every particle's paged map at robot ``poses (P, 3)``.
 
+    The arguments are those of :func:`update_grids` (the scan, the sensor and the map's
+    log-odds values, as the filter holds them in its state, config and params) with
+    the paged maps and their layout in place of the dense grids.
+
     The cells and values are those of :func:`update_grids` on dense grids; the tiles
     they fall in are allocated or copied first (:func:`jaxslam.grid.paged.plan_writes`).
     ``window_range`` (static, m) sizes the window of tiles around each sensor; the
