@@ -300,7 +300,7 @@ def search_bound(
 
 
 def get_matcher(name: str | Callable) -> Callable:
-    """A matcher of :data:`MATCHERS` by name, or ``name`` itself when it is one."""
+    """A matcher of ``MATCHERS`` by name, or ``name`` itself when it is one."""
     return choose(MATCHERS, name, "matcher")
 
 
