@@ -14,9 +14,11 @@ Modules:
   defaults), state, info, inputs.
 * :mod:`~jaxslam.grid.algorithms` — the filters by their command-line names: each one's
   step and its own defaults.
-* :mod:`~jaxslam.grid.filter` — ``init`` and the shared tail of both filters' steps.
-* :mod:`~jaxslam.grid.driver` — the grid run loop: chunks through the cached runners of
-  :mod:`jaxslam.runtime.driver` (step keys, jit policy), map growth.
+* :mod:`~jaxslam.grid.filter` — ``init`` and the keyframe update both filters share
+  (:func:`~jaxslam.grid.filter.keyframe_update`: each filter gives its per-particle
+  ``propose``).
+* :mod:`~jaxslam.grid.driver` — the grid run loop: the step's summary and map growth
+  around the one chunk runner of :mod:`jaxslam.runtime.driver`.
 * :mod:`~jaxslam.grid.gmapping`, :mod:`~jaxslam.grid.srupf` — the filters
   (``init``/``step``/``run``).
 * :mod:`~jaxslam.grid.export` — PGM + YAML (ROS map_server) and PNG.
