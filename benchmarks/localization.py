@@ -11,7 +11,7 @@ noise level ``low`` or ``high``, one seed per run), scored against the corrected
   (``diverged`` when any is).
 * ``global``: a uniform start over the map's free space at each particle count:
   ``success`` when the estimate stays within 0.5 m and 10 deg of the reference from
-  some scan to the end of the log; that scan and its log time; the filter's wall time
+  some scan to the end of the log (at least the last 10 scans); that scan and its log time; the filter's wall time
   and scans per second (filter loop, and loop plus compilation and start).
   ``--process-timing`` also times one whole ``jaxslam localize`` process per particle
   count (seed 0: import, map and log reading, compilation, the run, the files).
@@ -99,11 +99,12 @@ def build_map(name: str, resolution: float = 0.05):
             (log_odds, origin, resolution), np.asarray(reference.scan_times, np.float64))
 
 
-def converged_scan(distance, heading, metres=0.5, degrees=10.0, start: int = 0):
-    """The first scan at or after ``start`` from which every error is within the bounds."""
+def converged_scan(distance, heading, metres=0.5, degrees=10.0, start: int = 0, hold: int = 10):
+    """The first scan at or after ``start`` from which every error is within the bounds,
+    if that holds for at least ``hold`` scans (the log's last few scans alone do not count)."""
     bad = np.flatnonzero((distance[start:] >= metres) | (heading[start:] >= np.radians(degrees)))
     first = start if bad.size == 0 else start + int(bad[-1]) + 1
-    return None if first >= distance.size else first
+    return None if first > distance.size - max(hold, 1) else first
 
 
 def kidnapped(log, reference: np.ndarray, reference_times: np.ndarray, cut: int, resume: int):

@@ -63,8 +63,11 @@ def test_kidnap_points_are_far_enough_apart():
 def test_converged_scan_is_where_the_error_stays_in_bounds():
     distance = np.array([5.0, 0.1, 0.2, 0.6, 0.1, 0.1, 0.1])
     heading = np.zeros(7)
-    assert loc.converged_scan(distance, heading) == 4
-    assert loc.converged_scan(distance, heading, start=5) == 5
+    assert loc.converged_scan(distance, heading, hold=1) == 4
+    assert loc.converged_scan(distance, heading, start=5, hold=1) == 5
+    assert loc.converged_scan(distance, heading, hold=3) == 4
+    assert loc.converged_scan(distance, heading, hold=4) is None  # only the last three scans
     heading[5] = np.radians(11)
-    assert loc.converged_scan(distance, heading) == 6
+    assert loc.converged_scan(distance, heading, hold=1) == 6
     assert loc.converged_scan(np.full(3, 1.0), np.zeros(3)) is None
+    assert loc.converged_scan(np.r_[np.ones(5), np.zeros(10)], np.zeros(15)) == 5  # the default: 10 scans
