@@ -261,17 +261,80 @@ def localization_tracking_table() -> str:
                    "particles in use", "scans/s"], rows)
 
 
+def _rate(value: float) -> str:
+    return f"{value:.1f}" if value < 10 else f"{value:.0f}"
+
+
 def localization_global_table() -> str:
-    """Global localization from a uniform start over the map's free space."""
+    """Global localization from a uniform start over the map's free space, per particle count."""
+    rows = []
+    for data in _localization_files():
+        process = {(r["log"], r["particles"]): r for r in data.get("process_timing", [])}
+        counts = sorted({(r["log"], r["particles"]) for r in data["global"]}, key=lambda k: (k[0], k[1]))
+        for log, particles in counts:
+            runs = [r for r in data["global"] if (r["log"], r["particles"]) == (log, particles)]
+            good = [r for r in runs if r["success"]]
+            whole = process.get((log, particles))
+            rows.append([
+                LOCALIZATION_LOGS.get(log, log), f"{particles:,}", f"{len(good)} of {len(runs)}",
+                f"{statistics.median(r['converged_scan'] for r in good):.0f}" if good else "",
+                f"{statistics.median(r['converged_after_s'] for r in good):.0f} s" if good else "",
+                _rate(statistics.mean(r['scans_per_s'] for r in runs)),
+                _rate(statistics.mean(r['scans_per_s_with_compile'] for r in runs)),
+                _rate(whole['scans_per_s_process']) if whole else ""])
+    return _table(["log", "capacity", "converged and stayed", "median from scan", "median log time",
+                   "scans/s, filter loop", "scans/s, with compilation", "scans/s, whole process (seed 0)"], rows)
+
+
+def localization_global_runs_table() -> str:
+    """Every global localization run."""
     rows = []
     for data in _localization_files():
         for r in data["global"]:
             rows.append([LOCALIZATION_LOGS.get(r["log"], r["log"]), f"{r['particles']:,}", str(r["seed"]),
                          "yes" if r["success"] else "no",
-                         "" if r["converged_scan"] is None else str(r["converged_scan"]), str(r["scans"]),
-                         f"{r['wall_s']:.1f} s", f"{r['scans_per_s']:.0f}"])
-    return _table(["log", "capacity", "seed", "converged and stayed", "from scan", "scans", "filter loop",
-                   "scans/s"], rows)
+                         "" if r["converged_scan"] is None else str(r["converged_scan"]),
+                         "" if r["converged_after_s"] is None else f"{r['converged_after_s']:.0f} s",
+                         f"{r['final_err_m']:.2f} m", f"{r['wall_s']:.1f} s"])
+    return _table(["log", "capacity", "seed", "converged and stayed", "from scan", "log time", "final error",
+                   "filter loop"], rows)
+
+
+def localization_kidnap_table() -> str:
+    """Recovery from a kidnapping: the log cut and continued elsewhere."""
+    rows = []
+    for data in _localization_files():
+        for r in data.get("kidnap", []):
+            rows.append([LOCALIZATION_LOGS.get(r["log"], r["log"]), str(r["seed"]),
+                         f"{r['cut_scan']} -> {r['resume_scan']}", f"{r['jump_m']:.1f} m",
+                         f"{r['before_mean_m']:.3f} m", "yes" if r["recovered"] else "no",
+                         "" if r["recovery_scans"] is None else str(r["recovery_scans"]),
+                         "" if r["recovery_s"] is None else f"{r['recovery_s']:.0f} s",
+                         str(r["injections_after"])])
+    return _table(["log", "seed", "scans (cut -> resumed)", "jump", "error before", "recovered", "scans after",
+                   "log time after", "injections after"], rows)
+
+
+def localization_amcl_table() -> str:
+    """jaxslam and ROS AMCL, each a whole process, on the same maps and logs."""
+    data = load("localization_amcl.json")
+    rows = []
+    keys = []
+    for r in data["amcl"]:
+        key = (r["log"], r["mode"], r["particles"], r["localizer"])
+        if key not in keys:
+            keys.append(key)
+    for log, mode, particles, localizer in keys:
+        runs = [r for r in data["amcl"] if (r["log"], r["mode"], r["particles"], r["localizer"]) ==
+                (log, mode, particles, localizer)]
+        good = [r for r in runs if r["success"]]
+        rows.append([LOCALIZATION_LOGS.get(log, log), mode, f"{particles:,}", localizer,
+                     f"{len(good)} of {len(runs)}", f"{statistics.median(r['median_m'] for r in runs):.3f} m",
+                     f"{statistics.mean(r['particles_mean'] for r in runs):.0f}",
+                     f"{statistics.mean(r['per_update_ms'] for r in runs):.2f} ms",
+                     f"{statistics.mean(r['process_s'] for r in runs):.1f} s"])
+    return _table(["log", "start", "capacity", "localizer", "converged and stayed", "median error",
+                   "particles in use", "per update", "whole process"], rows)
 
 
 TABLES = {
@@ -279,6 +342,8 @@ TABLES = {
     "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
     "compile_cost": compile_cost_table, "path_agreement": path_agreement_table,
     "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
+    "localization_global_runs": localization_global_runs_table, "localization_kidnap": localization_kidnap_table,
+    "localization_amcl": localization_amcl_table,
     "coarse_stage": lambda: comparison_table("robustness_coarse_stage.json", "robustness_no_coarse_stage.json",
                                              "with the coarse stage", "without"),
     "recovery": lambda: comparison_table("robustness_recovery.json", "robustness_no_recovery.json",
@@ -288,7 +353,9 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
             "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
-            "localization_global": "localization.json", "coarse_stage": "robustness_coarse_stage.json",
+            "localization_global": "localization.json", "localization_global_runs": "localization.json",
+            "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",
+            "coarse_stage": "robustness_coarse_stage.json",
             "recovery": "robustness_recovery.json"}
 
 

@@ -11,6 +11,10 @@ writes into ``OUT``:
   spread and the weight near the estimate, ``convergence_rule``), ESS, particles in
   use, injections, timings (strict JSON: no NaN);
 * ``localization.png`` — the path on the map with the particle cloud at a few moments.
+
+``--rerun FILE.rrd`` / ``--rerun-spawn`` log the run to Rerun as it goes, once per chunk
+(:class:`jaxslam.viz.rerun_log.LocalizationLiveLog`): the run is the plain run's
+compiled program.
 """
 
 from __future__ import annotations
@@ -52,6 +56,10 @@ def add_parser(sub, positive_int, nonneg_int) -> None:
     loc.add_argument("--chunk", type=positive_int, default=256, help="scans per compiled chunk")
     loc.add_argument("--max-range", type=float, default=None, metavar="M",
                      help="CARMEN logs: range limit in m (as for `jaxslam run`)")
+    loc.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
+                     help="log the run to a Rerun recording as it goes: map, particles, path, scans, ESS, "
+                          'particles in use, injections (needs pip install "jaxslam[viz]")')
+    loc.add_argument("--rerun-spawn", action="store_true", help="... and/or open the Rerun viewer live")
     loc.add_argument("--no-plots", action="store_true", help="skip localization.png")
     loc.add_argument("--json", action="store_true",
                      help="print summary.json instead of the short report at the end")
@@ -203,6 +211,7 @@ def run(args) -> dict[str, Any]:
     from jaxslam.app import data
     from jaxslam.app.errors import RunError
     from jaxslam.app.outputs import write_trajectory
+    from jaxslam.app.runs import _open_viz
     from jaxslam.grid.mapfile import load_map
     from jaxslam.localization.experiment import localize, summary
 
@@ -238,9 +247,20 @@ def run(args) -> dict[str, Any]:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    result = localize(log, grid, particles=args.particles, seed=args.seed, initial_pose=pose, initial_std=std,
-                      overrides=overrides, max_steps=args.max_steps, chunk=args.chunk, max_beams=args.max_beams)
     name = info.name if info is not None else str(Path(path).resolve())
+    viz = _open_viz(args.rerun, args.rerun_spawn, Path(name).name)
+    live = None
+    if viz is not None:
+        from jaxslam.viz.rerun_log import LocalizationLiveLog
+
+        live = LocalizationLiveLog(viz, log, grid)
+    try:
+        result = localize(log, grid, particles=args.particles, seed=args.seed, initial_pose=pose, initial_std=std,
+                          overrides=overrides, max_steps=args.max_steps, chunk=args.chunk, max_beams=args.max_beams,
+                          on_chunk=live)
+    finally:
+        if viz is not None:
+            viz.close()
     record = {
         "command": "localize", "map": str(Path(grid.source).resolve()), "dataset": name,
         "seed": args.seed, "initial_pose": None if pose is None else [float(v) for v in pose],
@@ -249,6 +269,8 @@ def run(args) -> dict[str, Any]:
         "map_shape": list(grid.shape), "map_resolution": grid.resolution, "map_origin": list(grid.origin),
         "jaxslam_version": __import__("jaxslam").__version__,
     }
+    if args.rerun is not None:
+        record["rerun"] = str(args.rerun)
     record["total_s"] = time.perf_counter() - started + load_s
     record = _strict(record)
     if not all(np.isfinite(result.trajectory).ravel()):

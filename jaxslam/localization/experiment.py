@@ -4,8 +4,9 @@ runs :func:`~jaxslam.localization.monte_carlo.mcl`.
 The log is any :class:`jaxslam.datasets.carmen.CarmenLog` (a CARMEN log, a ROS bag
 read by :func:`jaxslam.datasets.rosbag.load_rosbag`, a simulation). Every scan is one
 filter step, its control the odometry increment since the previous scan. The run is
-a jitted ``lax.scan`` over chunks of ``chunk`` scans (one program for full chunks, one
-for the last); at a few chunk ends the particle cloud is kept for the figure.
+a :class:`~jaxslam.localization.stream.StreamingLocalizer` fed chunks of ``chunk``
+scans, each a jitted ``lax.scan`` (one program for full chunks, one for the last); at
+a few chunk ends the particle cloud is kept for the figure.
 
 Convergence, judged by the filter itself: the first scan from which, at ``hold``
 measurements in a row, the cloud's spread is at most ``converged_spread`` metres and
@@ -18,21 +19,15 @@ estimate stays within a distance and an angle of it.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
-from typing import Any
+from typing import Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from jaxslam.datasets.geometry import se2_between
 from jaxslam.grid.mapfile import OccupancyMap
-from jaxslam.grid.types import Scan
-from jaxslam.localization.field import free_cell_centres, likelihood_field
-from jaxslam.localization.monte_carlo import DEFAULTS, MclConfig, MclParams, default_params, mcl
-from jaxslam.runtime.driver import step_keys
-from jaxslam.runtime.keys import seed_key
+from jaxslam.localization.monte_carlo import MclConfig, MclParams
+from jaxslam.localization.stream import StreamingLocalizer, filter_inputs
 
 CLOUD_POINTS = 3000  # particles kept per snapshot for the figure
 
@@ -63,61 +58,13 @@ class LocalizationResult:
     global_start: bool
 
 
-def log_controls(log) -> tuple[np.ndarray, Scan]:
-    """``(increments (S, 3), scans)``: odometry increments (zero before the first scan)
-    and the scans of a log, as the filter's controls and observations."""
-    odom = np.asarray(log.odom_poses, np.float64)
-    increments = np.zeros_like(odom)
-    increments[1:] = se2_between(odom[:-1], odom[1:])
-    ranges = np.asarray(log.ranges, np.float32)
-    valid = np.asarray(log.valid, bool) & np.isfinite(ranges)
-    offsets = np.asarray(getattr(log, "angle_offsets", np.zeros(ranges.shape[0])), np.float32)
-    return increments, Scan(np.where(valid, ranges, 0.0).astype(np.float32), valid, offsets)
-
-
 def make_filter_inputs(log, grid: OccupancyMap, particles: int, overrides: dict | None = None,
                        max_beams: int = 60, min_particles: int | None = None, max_distance: float = 2.0,
                        dtype=np.float32) -> tuple[MclConfig, MclParams]:
     """The :class:`~jaxslam.localization.monte_carlo.MclConfig` and :class:`~jaxslam.localization.monte_carlo.MclParams` for a log in a map."""
-    num_beams = int(np.asarray(log.ranges).shape[1])
-    if min_particles is None:
-        min_particles = min(particles, max(100, particles // 50))
-    config = MclConfig(capacity=int(particles), num_beams=num_beams, max_beams=int(max_beams),
-                       min_particles=int(min_particles))
-    field = likelihood_field(grid, max_distance, dtype)
-    free = free_cell_centres(grid, max_cells=1 << 20)
-    params = default_params(field, free, np.asarray(log.angles, np.float64), float(log.max_range),
-                            np.asarray(log.laser_offset, np.float64), **(overrides or {}))
-    return config, params
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _run_chunk(config: MclConfig, params: MclParams, state, keys, controls, observations):
-    step = mcl(config, params).step
-
-    def body(carry, xs):
-        key, control, observation = xs
-        return step(key, carry, control, observation)
-
-    return jax.lax.scan(body, state, (keys, controls, observations))
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _init(config: MclConfig, params: MclParams, key, pose, pose_std):
-    return mcl(config, params).init(key, pose, pose_std)
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _init_global(config: MclConfig, params: MclParams, key):
-    return mcl(config, params).init(key)
-
-
-def _cloud(state, limit: int) -> np.ndarray:
-    n = int(state.num_active)
-    poses = np.asarray(state.poses[:n], np.float64)
-    if n > limit:
-        poses = poses[np.linspace(0, n - 1, limit).astype(np.int64)]
-    return poses
+    return filter_inputs(grid, np.asarray(log.angles, np.float64), float(log.max_range),
+                         np.asarray(log.laser_offset, np.float64), particles, overrides, max_beams, min_particles,
+                         max_distance, dtype)
 
 
 def localize(
@@ -134,6 +81,7 @@ def localize(
     max_beams: int = 60,
     min_particles: int | None = None,
     dtype=np.float32,
+    on_chunk: Callable[[StreamingLocalizer, int, int], None] | None = None,
 ) -> LocalizationResult:
     """Localize ``log`` in ``grid``: global when ``initial_pose`` is None.
 
@@ -152,50 +100,39 @@ def localize(
             chunk ends spread over the run (the last included).
         max_beams, min_particles: see :class:`~jaxslam.localization.monte_carlo.MclConfig`.
         dtype: float32 (default) or float64 (needs JAX's 64-bit mode).
+        on_chunk: called as ``on_chunk(localizer, lo, hi)`` after the scans ``lo:hi``
+            of each chunk (the live view); it runs no filter program of its own.
     """
-    increments, scans = log_controls(log)
     times = np.asarray(log.scan_times, np.float64)
-    total = increments.shape[0] if max_steps is None else min(int(max_steps), increments.shape[0])
+    ranges = np.asarray(log.ranges)
+    total = ranges.shape[0] if max_steps is None else min(int(max_steps), ranges.shape[0])
     if total < 1:
         raise ValueError("the log has no scans")
-    config, params = make_filter_inputs(log, grid, particles, overrides, max_beams, min_particles, dtype=dtype)
-    key_init, key_run = jax.random.split(jnp.asarray(seed_key(seed)))
-    keys = np.asarray(step_keys(key_run, total))
-    if initial_pose is None:
-        state = _init_global(config, params, key_init)
-    else:
-        state = _init(config, params, key_init, np.asarray(initial_pose, dtype), np.asarray(initial_std, dtype))
-    state = jax.block_until_ready(state)
-    kept: list[tuple[int, np.ndarray]] = [(-1, _cloud(state, CLOUD_POINTS))] if snapshots > 0 else []
+    localizer = StreamingLocalizer(
+        grid, np.asarray(log.angles, np.float64), float(log.max_range), np.asarray(log.laser_offset, np.float64),
+        particles=particles, seed=seed, initial_pose=initial_pose, initial_std=initial_std, overrides=overrides,
+        max_beams=max_beams, min_particles=min_particles, dtype=dtype)
+    kept: list[tuple[int, np.ndarray]] = [(-1, localizer.cloud(CLOUD_POINTS))] if snapshots > 0 else []
     chunk = max(1, min(int(chunk), total))
     bounds = list(range(0, total, chunk)) + [total]
     wanted = set(np.linspace(1, len(bounds) - 1, max(snapshots - 1, 1)).round().astype(int).tolist())
-    pieces: list[Any] = []
-    compile_s = 0.0
-    compiled_lengths: set[int] = set()
+    odom = np.asarray(log.odom_poses, np.float64)
+    valid = np.asarray(log.valid, bool)
+    offsets = np.asarray(getattr(log, "angle_offsets", None) if getattr(log, "angle_offsets", None) is not None
+                         else np.zeros(ranges.shape[0]))
     loop_started = time.perf_counter()
-    real = np.dtype(dtype)
     for index, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:]), 1):
-        args = (config, params, state, keys[lo:hi], increments[lo:hi].astype(real),
-                Scan(scans.ranges[lo:hi].astype(real), scans.valid[lo:hi], scans.angle_offset[lo:hi].astype(real)))
-        if hi - lo not in compiled_lengths:
-            compiling = time.perf_counter()
-            lowered = _run_chunk.lower(*args)
-            lowered.compile()
-            compile_s += time.perf_counter() - compiling
-            compiled_lengths.add(hi - lo)
-        state, ys = _run_chunk(*args)
-        pieces.append(ys)
+        localizer.add_scans(times[lo:hi], ranges[lo:hi], valid[lo:hi], odom[lo:hi], offsets[lo:hi])
+        if on_chunk is not None:
+            on_chunk(localizer, lo, hi)
         if index in wanted and snapshots > 1:
-            kept.append((hi - 1, _cloud(state, CLOUD_POINTS)))
-    jax.block_until_ready(state)
-    wall_s = time.perf_counter() - loop_started - compile_s
-    info = {name: np.concatenate([np.asarray(getattr(p, name)) for p in pieces]) for name in pieces[0]._fields
-            if name != "ancestors"}
-    scalars = {name: float(np.asarray(getattr(params, name))) for name in DEFAULTS}
+            kept.append((hi - 1, localizer.cloud(CLOUD_POINTS)))
+    jax.block_until_ready(localizer.state)
+    wall_s = time.perf_counter() - loop_started - localizer.compile_s
     return LocalizationResult(
-        times=times[:total], trajectory=np.asarray(info["estimate"], np.float64), info=info, snapshots=kept,
-        config=config, params=scalars, wall_s=wall_s, compile_s=compile_s, global_start=initial_pose is None,
+        times=times[:total], trajectory=localizer.trajectory(), info=localizer.info(), snapshots=kept,
+        config=localizer.config, params=localizer.params_used, wall_s=wall_s, compile_s=localizer.compile_s,
+        global_start=initial_pose is None,
     )
 
 
@@ -266,7 +203,6 @@ __all__ = [
     "CLOUD_POINTS",
     "LocalizationResult",
     "localize",
-    "log_controls",
     "make_filter_inputs",
     "self_convergence",
     "summary",

@@ -17,7 +17,10 @@ stamp, s) beside it:
 Hooks. :class:`GridLiveLog` follows a :func:`jaxslam.grid.experiment.run_grid_slam`
 run through its ``checkpoint`` slot (called at the end of each chunk with the carry
 and the outputs so far; it saves nothing); :meth:`RerunLog.landmark_callback` is a
-``callback`` for :func:`jaxslam.feature.experiment.run_landmark_slam`.
+``callback`` for :func:`jaxslam.feature.experiment.run_landmark_slam`;
+:class:`LocalizationLiveLog` is the ``on_chunk`` hook of
+:func:`jaxslam.localization.experiment.localize` (the map read back, the particle
+cloud, the estimated path, particles in use and injections under ``health/``).
 
 Rerun is an optional dependency; without it :func:`require_rerun` raises an
 :class:`ImportError` that names ``pip install "jaxslam[viz]"``.
@@ -155,14 +158,26 @@ class RerunLog:
             self.stream.set_time("stamp", duration=float(stamp))
 
     def grid_map(self, log_odds: np.ndarray, resolution: float, origin) -> None:
+        self._map_image(occupancy_percent(log_odds), resolution, origin)
+
+    def occupancy_map(self, grid) -> None:
+        """A map read back (:class:`jaxslam.grid.mapfile.OccupancyMap`): its OccupancyGrid
+        values (``-1`` unknown) as they are, turned by its origin's yaw."""
+        values = np.asarray(grid.occupancy)
+        image = np.where(values < 0, 255, np.clip(values.astype(np.int16), 0, 100)).astype(np.uint8)
+        self._map_image(np.ascontiguousarray(image[::-1]), grid.resolution, grid.origin)
+
+    def _map_image(self, image: np.ndarray, resolution: float, origin) -> None:
+        """``image``: uint8 percent occupied (255 unknown), top row = largest y."""
         rr = self.rr
-        image = occupancy_percent(log_odds)
         height, width = image.shape
+        yaw = float(origin[2]) if len(origin) > 2 else 0.0
+        turn = rr.RotationAxisAngle(axis=[0.0, 0.0, 1.0], radians=yaw) if yaw else None
         self.stream.log("world/map", rr.GridMap(
             data=image.tobytes(),
             format=rr.components.ImageFormat(width=width, height=height, color_model="L", channel_datatype="U8"),
             cell_size=float(resolution), translation=[float(origin[0]), float(origin[1]), -0.01],
-            colormap=rr.components.Colormap.RvizMap))
+            rotation_axis_angle=turn, colormap=rr.components.Colormap.RvizMap))
 
     def particles(self, poses: np.ndarray, arrow: float = 0.3) -> None:
         rr = self.rr
@@ -188,9 +203,13 @@ class RerunLog:
         hits = np.stack([laser[0] + r * np.cos(a), laser[1] + r * np.sin(a)], axis=1)
         self.stream.log("world/scan", self.rr.Points3D(_xyz(hits), radii=0.03, colors=[220, 30, 30]))
 
-    def health(self, ess: float, resampled: bool) -> None:
+    def health(self, ess: float, resampled: bool, particles: int | None = None, injected: int | None = None) -> None:
         self.stream.log("health/ess", self.rr.Scalars(float(ess)))
         self.stream.log("health/resampled", self.rr.Scalars(float(bool(resampled))))
+        if particles is not None:
+            self.stream.log("health/particles", self.rr.Scalars(float(particles)))
+        if injected is not None:
+            self.stream.log("health/injected", self.rr.Scalars(float(injected)))
 
     def landmarks(self, means: np.ndarray, covs: np.ndarray, sigmas: float = 3.0) -> None:
         rr = self.rr
@@ -326,3 +345,48 @@ class GridLiveLog:
         cells, origin = stitch(state.maps.pool, np.asarray(state.maps.tables)[best], state.maps.corner, layout)
         viz.grid_map(cells.astype(np.float32) * unit, layout.resolution, origin)
         self._logged = int(done)
+
+
+class LocalizationLiveLog:
+    """Follows a localization run chunk by chunk (the ``on_chunk`` hook of
+    :func:`jaxslam.localization.experiment.localize`).
+
+    The map once, then for every scan of a chunk the ESS, resampling, particles in use,
+    injected particles and the scan at the estimate, and at the chunk's end the particle
+    cloud (at most ``cloud_points`` of the particles in use) and the path so far.
+
+    Args:
+        viz: the :class:`RerunLog`.
+        log: the log being localized (scans, stamps, beam angles, laser mount).
+        grid: the map (:class:`jaxslam.grid.mapfile.OccupancyMap`).
+        cloud_points: particles drawn per chunk.
+    """
+
+    def __init__(self, viz: RerunLog, log, grid, cloud_points: int = 5000):
+        self.viz = viz
+        self.log = log
+        self.grid = grid
+        self.cloud_points = int(cloud_points)
+        self._first = True
+
+    def __call__(self, localizer, lo: int, hi: int) -> None:
+        viz, log = self.viz, self.log
+        times = np.asarray(log.scan_times, np.float64)
+        if self._first:
+            self._first = False
+            viz.at(lo, float(times[lo]))
+            viz.occupancy_map(self.grid)
+        info = localizer.info()
+        path = localizer.trajectory()
+        laser_offset = np.asarray(log.laser_offset, np.float64)
+        angles = np.asarray(log.angles, np.float64)
+        offsets = getattr(log, "angle_offsets", None)
+        for scan in range(lo, hi):
+            viz.at(scan, float(times[scan]))
+            viz.health(float(info["ess"][scan]), bool(info["resampled"][scan]), int(info["particles"][scan]),
+                       int(info["injected"][scan]))
+            shift = 0.0 if offsets is None else float(offsets[scan])
+            viz.scan(path[scan], laser_offset, angles + shift, np.asarray(log.ranges[scan], np.float64),
+                     log.valid[scan])
+        viz.particles(localizer.cloud(self.cloud_points))
+        viz.trajectory(path[:hi])

@@ -91,3 +91,53 @@ def test_a_grid_run_writes_a_map_that_reads_back(tmp_path):
     np.testing.assert_array_equal(saved.log_odds, arrays["log_odds"])
     assert saved.origin[:2] == tuple(arrays["origin"])
     np.testing.assert_array_equal(load_map(out / "map.yaml", require_free=False).occupancy, saved.occupancy)
+
+
+def test_rerun_without_the_sdk_is_one_line_naming_the_install_command(sim_map, tmp_path, capsys, monkeypatch):
+    import sys
+
+    from jaxslam.viz.rerun_log import INSTALL_HINT
+
+    monkeypatch.setitem(sys.modules, "rerun", None)  # import rerun now raises ImportError
+    folder, _ = sim_map
+    with pytest.raises(SystemExit) as code:
+        main(["localize", "--map", str(folder), "--dataset", "sim-laser", "--out", str(tmp_path / "o"),
+              "--rerun", str(tmp_path / "live.rrd")])
+    assert code.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert INSTALL_HINT in err and "--rerun" in err and err.count("\n") == 0
+
+
+def test_rerun_logs_the_run_and_compiles_nothing_the_plain_run_did_not(sim_map, tmp_path):
+    """The live view follows the run chunk by chunk (the map, every scan's health, the
+    cloud and the path at each chunk's end) and runs the plain run's programs."""
+    pytest.importorskip("rerun")
+    from jaxslam.runtime.cache import CompileCounter
+    from tests.viz.test_rerun_log import decode_map, read_rrd
+
+    folder, log = sim_map
+    pose = [str(v) for v in log.true_poses[0]]
+    common = ["localize", "--map", str(folder / "map.yaml"), "--dataset", "sim-laser", "--initial-pose", *pose,
+              "--particles", "500", "--max-steps", "50", "--chunk", "20", "--no-plots", "--json"]
+    assert main([*common, "--out", str(tmp_path / "plain")]) == 0
+    with CompileCounter() as counter:
+        assert main([*common, "--out", str(tmp_path / "live"), "--rerun", str(tmp_path / "live.rrd")]) == 0
+    assert counter.requests == 0, counter.as_dict()
+    assert (tmp_path / "live" / "trajectory.tum").read_text() == (tmp_path / "plain" / "trajectory.tum").read_text()
+    summary = json.loads((tmp_path / "live" / "summary.json").read_text())
+    assert summary["rerun"] == str(tmp_path / "live.rrd")
+    rows = read_rrd(tmp_path / "live.rrd")
+    assert [r["scan"] for r in rows["/health/ess"]] == list(range(50))
+    assert [r["scan"] for r in rows["/health/particles"]] == list(range(50))
+    assert [r["scan"] for r in rows["/world/particles"]] == [19, 39, 49]  # chunk ends
+    assert len(rows["/world/scan"]) == 50
+    path = np.array(rows["/world/trajectory"][-1]["LineStrips3D:strips"][0])[:, :2]
+    tum = np.loadtxt(tmp_path / "plain" / "trajectory.tum")
+    np.testing.assert_allclose(path, tum[:, 1:3], atol=1e-5)
+    image, cell, origin = decode_map(rows["/world/map"][0])
+    from jaxslam.grid.mapfile import load_map
+
+    grid = load_map(folder / "map.yaml")
+    expected = np.where(grid.occupancy < 0, 255, grid.occupancy.astype(np.int16))
+    np.testing.assert_array_equal(image, expected)
+    assert cell == pytest.approx(grid.resolution) and origin == pytest.approx(grid.origin[:2])
