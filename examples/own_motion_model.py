@@ -97,9 +97,14 @@ def main() -> None:
     state = filt.init(jnp.asarray(true[0]), 0.05 * jnp.eye(3))
     final, infos = jax.jit(jaxslam.run, static_argnums=0)(filt, jax.random.PRNGKey(0), state,
                                                           jnp.asarray(controls), jnp.asarray(observations))
+    dead_reckoning = true[0]
+    for control in controls:
+        dead_reckoning = np.asarray(forward_then_turn(jnp.concatenate([jnp.asarray(dead_reckoning), jnp.zeros(2)]),
+                                                      jnp.asarray(control)))
     print(f"log Z estimate {float(infos.log_likelihood_increment.sum()):.1f}, resampled "
-          f"{int(infos.resampled.sum())} of {len(controls)} steps, final error "
-          f"{np.hypot(*(np.asarray(final.poses).mean(0)[:2] - true[-1][:2])):.3f} m")
+          f"{int(infos.resampled.sum())} of {len(controls)} steps; final position error: filter "
+          f"{np.hypot(*(np.asarray(final.poses).mean(0)[:2] - true[-1][:2])):.3f} m, dead reckoning "
+          f"{np.hypot(*(dead_reckoning[:2] - true[-1][:2])):.3f} m")
 
 
 if __name__ == "__main__":
