@@ -163,8 +163,15 @@ def feature_cost_table() -> str:
                    "relations over 0.5 m"], rows)
 
 
-def comparison_table(with_name: str, without_name: str, with_label: str, without_label: str) -> str:
-    """``srupf-gm`` with and without one part, next to GMapping C++, on the logs both ran."""
+def _tail(cell: dict) -> str:
+    return f"{cell['tail_share']:.0%}, {cell['worst_max_m']:.2f} m"
+
+
+def comparison_table(with_name: str, without_name: str, with_label: str, without_label: str,
+                     tail: bool = False) -> str:
+    """``srupf-gm`` with and without one part, next to GMapping C++, on the logs both ran;
+    ``tail``: each arm's tail as well (the share of seeds over twice the median seed, and
+    the worst relation, :func:`grid_robustness.summarize`)."""
     with_cells = _cells(load(with_name)["summary"])
     without_cells = _cells(load(without_name)["summary"])
     cpp = _cells(load("robustness_suite.json")["summary"])
@@ -173,8 +180,11 @@ def comparison_table(with_name: str, without_name: str, with_label: str, without
         a, b = with_cells.get((log, "srupf-gm")), without_cells.get((log, "srupf-gm"))
         if a is None or b is None:
             continue
-        rows.append([LOG_NAMES.get(log, log), _mean_worst(a), _mean_worst(b), _mean_worst(cpp.get((log, "gmapping-cpp")))])
-    return _table(["log", with_label, without_label, "GMapping C++"], rows)
+        arms = [_mean_worst(a), _tail(a), _mean_worst(b), _tail(b)] if tail else [_mean_worst(a), _mean_worst(b)]
+        rows.append([LOG_NAMES.get(log, log), *arms, _mean_worst(cpp.get((log, "gmapping-cpp")))])
+    labels = ([with_label, "tail, worst relation", without_label, "tail, worst relation"] if tail
+              else [with_label, without_label])
+    return _table(["log", *labels, "GMapping C++"], rows)
 
 
 def closure_search_cost_table() -> str:
@@ -348,6 +358,8 @@ TABLES = {
                                              "with the coarse stage", "without"),
     "recovery": lambda: comparison_table("robustness_recovery.json", "robustness_no_recovery.json",
                                          "with the recovery and wider proposals", "without"),
+    "map_bound": lambda: comparison_table("robustness_map_bound.json", "robustness_no_map_bound.json",
+                                          "with the map bound", "without", tail=True),
 }
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
@@ -356,7 +368,7 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",
             "coarse_stage": "robustness_coarse_stage.json",
-            "recovery": "robustness_recovery.json"}
+            "recovery": "robustness_recovery.json", "map_bound": "robustness_map_bound.json"}
 
 
 def write_all(folder: Path = GENERATED) -> list[Path]:

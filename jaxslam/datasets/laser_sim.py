@@ -10,6 +10,8 @@ World (:func:`office_world`): a rectangular floor with a ring corridor around a
 block of rooms; each room opens onto the corridor through a door, and pillars along
 the outer wall break the symmetry of the long corridor sides. The robot drives the
 corridor centre line (rounded corners) for ``laps`` laps at a constant speed.
+:func:`corridor_world` is a straight corridor whose doors repeat at one period, the
+aliasing a loop-closure search meets in long office corridors.
 
 Sensor: ``num_beams`` beams over ``fov`` (default 180 deg, right to left), range
 noise ``N(0, range_std^2)``, readings beyond ``max_range`` reported as ``max_range``
@@ -32,7 +34,7 @@ import numpy as np
 from jaxslam.datasets.carmen import CarmenLog
 from jaxslam.datasets.geometry import se2_between, se2_compose
 
-__all__ = ["SimulatedLog", "office_world", "raycast", "ring_path", "simulate"]
+__all__ = ["SimulatedLog", "corridor_world", "office_world", "raycast", "ring_path", "simulate"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -114,6 +116,26 @@ def office_world(
             else:
                 cx, cy = s / 2, (1 - f) * height
             walls += _box(cx - s / 2, cy - s / 2, cx + s / 2, cy + s / 2)
+    return np.asarray(walls, np.float64)
+
+
+def corridor_world(
+    x0: float, x1: float, y: float, width: float = 2.0, period: float = 3.0, door: float = 0.9, depth: float = 1.0,
+) -> np.ndarray:
+    """Wall segments ``(M, 4)`` of a straight corridor along x from ``x0`` to ``x1``,
+    centred on ``y``, ``width`` wide, closed at ``x0``: both walls open every
+    ``period`` metres onto a closet ``door`` wide and ``depth`` deep (centred in the
+    period), the same on every period, so that a scan matches equally well wherever it
+    is moved along the axis by a multiple of ``period`` (the corridor's ends aside)."""
+    half = 0.5 * width
+    walls: list[tuple[float, float, float, float]] = [(x0, y - half, x0, y + half)]
+    for side in (1.0, -1.0):
+        wall, back = y + side * half, y + side * (half + depth)
+        for start in np.arange(x0, x1, period):
+            d0 = start + 0.5 * (period - door)
+            d1 = d0 + door
+            walls += [(start, wall, d0, wall), (d0, wall, d0, back), (d0, back, d1, back), (d1, back, d1, wall),
+                      (d1, wall, start + period, wall)]
     return np.asarray(walls, np.float64)
 
 

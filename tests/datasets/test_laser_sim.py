@@ -3,7 +3,7 @@
 import numpy as np
 
 from jaxslam.datasets.carmen import CarmenLog, select_keyframes
-from jaxslam.datasets.laser_sim import office_world, raycast, ring_path, simulate
+from jaxslam.datasets.laser_sim import corridor_world, office_world, raycast, ring_path, simulate
 
 
 def test_raycast_box_distances():
@@ -52,3 +52,19 @@ def test_odometry_drifts_and_is_seeded():
     np.testing.assert_array_equal(a.odom_poses, b.odom_poses)
     drift = np.hypot(*(a.odom_poses[-1, :2] - a.true_poses[-1, :2]))
     assert drift > 0.3
+
+
+def test_corridor_scans_repeat_with_the_doors_period():
+    """A scan in the corridor of :func:`corridor_world` reads the same ranges one period
+    further along (its ends out of range), and not half a period further: the doors
+    and their closets break the corridor into equal periods."""
+    walls = corridor_world(0.0, 30.0, 4.0, period=3.0)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 91)[None]
+    origins = np.array([[10.2, 4.1], [13.2, 4.1], [11.7, 4.1]])
+    ranges = raycast(walls, origins, np.zeros((3, 1)) + angles, 5.0)
+    np.testing.assert_allclose(ranges[1], ranges[0], atol=1e-9)
+    assert np.nanmax(np.abs(np.where(np.isfinite(ranges[2] - ranges[0]), ranges[2] - ranges[0], 0.0))) > 0.5
+    # the wall 1 m from the centre line between doors (at 1.05-1.95 m of each period),
+    # the closet 1 m deep behind a door
+    side = raycast(walls, np.array([[9.0, 4.1], [10.5, 4.1]]), np.full((2, 1), np.pi / 2), 5.0)[:, 0]
+    np.testing.assert_allclose(side, [0.9, 1.9], atol=1e-9)

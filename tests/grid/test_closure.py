@@ -12,13 +12,16 @@ import numpy as np
 import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
+from jaxslam.datasets.laser_sim import corridor_world, raycast
 from jaxslam.grid.closure import (
     POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
 )
 from jaxslam.grid.undone_closures import judge_at_end, put_back, reported_undo, take_back
 from jaxslam.grid.map import GridSpec, dense_reader
 from jaxslam.grid.algorithms import grid_algorithm
-from jaxslam.grid.types import ClosureState, with_values
+from jaxslam.grid.experiment import map_layout
+from jaxslam.grid.filter import init, integrate_scan
+from jaxslam.grid.types import ClosureState, Scan, with_values
 from jaxslam.grid.tracking import track as _track
 from tests.grid.sim_state import state_and_scans
 
@@ -533,3 +536,46 @@ def test_a_closure_still_watched_at_the_end_is_judged_on_the_scans_it_had():
     off = with_values(params, {"closure.undo_end": np.float64(1.0)})
     np.testing.assert_array_equal(judge_at_end(memory(1.0, 6 * 0.9, 6.0), off), np.zeros(4))
     np.testing.assert_array_equal(take_back(reported, np.arange(40), reported_undo(np.zeros((39, 4)), None)), reported)
+
+
+def _corridor_state(sim, params):
+    """A two-particle state (float64) whose maps hold a corridor of doors repeated every
+    3 m (:func:`jaxslam.datasets.laser_sim.corridor_world`) seen from x = -2 to 7 m at
+    the true poses (5 m range), and the scan at x = 10 m, where the corridor ahead is
+    not yet in the map: ``(state, scan, pose)``. The maps are those of
+    :func:`tests.grid.sim_state.state_and_scans` (its layout and config)."""
+    layout = map_layout(sim, np.arange(sim.num_scans), 0.05, 3.0, 2, 20.0)
+    config = grid_algorithm("srupf-gm").make_config(2, layout, sim.num_beams, 4096)
+    walls = corridor_world(-3.0, 16.0, 4.0)
+    poses = np.stack([np.r_[np.arange(-2.0, 7.01, 0.5), 10.0], np.full(20, 4.0), np.zeros(20)], 1)
+    ranges = raycast(walls, poses[:, :2], poses[:, 2:3] + np.asarray(sim.angles, np.float64)[None], 5.0)
+    valid = np.isfinite(ranges)
+    scans = [Scan(np.where(v, r, 0.0).astype(np.float32), v, 0.0) for r, v in zip(ranges, valid)]  # as the logs
+    with jax.enable_x64(True):
+        state = jax.jit(init, static_argnums=2)(jax.random.PRNGKey(0), params, config, scans[0], poses[0])
+        maps, integrate = state.maps, jax.jit(integrate_scan, static_argnums=4)
+        for i in range(1, len(poses) - 1):
+            maps, _, _ = integrate(maps, np.repeat(poses[i][None], 2, 0), scans[i], params, config)
+    return state._replace(maps=maps), scans[-1], poses[-1]
+
+
+def test_the_map_bound_refuses_a_first_closure_onto_an_alias_doors_repeated_metres_back(sim, tracked):
+    """A wrong closure that the closure's own tests keep: in a corridor whose doors
+    repeat every 3 m the robot reaches a stretch not yet in the map, 50 m of odometry
+    after the start and no closure taken. Its match at the true pose scores low (the
+    beams ahead end in unknown cells), and the search finds the corridor two periods
+    back, 6 m behind, which scores as a full match: without
+    ``config.closure_map_bound`` the ``closure.drift`` bound (25 m) takes that jump;
+    with it the bound is the tracking's drift, 1 m, and the scan stays on the true pose."""
+    track, _, _, params, config = tracked
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
+    state, scan, true_pose = _corridor_state(sim, params)
+    bounded = dataclasses.replace(config, closure_map_bound=True)
+    with jax.enable_x64(True):
+        true_step = se2_between(np.asarray(state.poses[0])[None], true_pose[None])[0]
+        plain = track(state._replace(closure=_memory(travelled=50.0)), true_step, scan, at_once, config)
+        first = track(state._replace(closure=_memory(True, travelled=50.0)), true_step, scan, at_once, bounded)
+    error = se2_between(true_step[None], np.asarray(plain[0])[None])[0]
+    assert bool(plain[3]) and abs(abs(error[0]) - 6.0) < 0.1 and abs(error[1]) < 0.1, (error, plain[:4])
+    assert float(plain[1]) / float(first[1]) > 3.0  # the alias scores as a full match, the true pose does not
+    assert not bool(first[3]) and _on_true_pose(true_step, first), first[:4]
