@@ -210,8 +210,7 @@ def run(args) -> dict[str, Any]:
     """``jaxslam localize`` with parsed arguments; returns the summary."""
     from jaxslam.app import data
     from jaxslam.app.errors import RunError
-    from jaxslam.app.outputs import write_trajectory
-    from jaxslam.app.runs import _open_viz
+    from jaxslam.app.outputs import open_live_view, write_trajectory
     from jaxslam.grid.mapfile import load_map
     from jaxslam.localization.experiment import localize, summary
 
@@ -248,7 +247,7 @@ def run(args) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     name = info.name if info is not None else str(Path(path).resolve())
-    viz = _open_viz(args.rerun, args.rerun_spawn, Path(name).name)
+    viz = open_live_view(args.rerun, args.rerun_spawn, Path(name).name)
     live = None
     if viz is not None:
         from jaxslam.viz.rerun_log import LocalizationLiveLog

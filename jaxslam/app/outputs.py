@@ -9,7 +9,8 @@
   (:func:`jaxslam.grid.mapfile.save_map_npz`, read back by :func:`jaxslam.grid.mapfile.load_map`);
 * ``arrays.npz`` — the data the figures are drawn from, so that :func:`replot` (``jaxslam
   plot``) redraws every figure of the folder: ``trajectory.png`` (landmark runs) or
-  ``map_trajectory.png`` and ``map.png`` (grid runs), and ``health.png``.
+  ``map_trajectory.png`` and ``map.png`` (grid runs), and ``health.png``;
+* the live view (:func:`open_live_view`, ``--rerun`` / ``--rerun-spawn``).
 
 Host-side NumPy; matplotlib only inside :func:`replot` (via :mod:`jaxslam.app.plotting`).
 """
@@ -27,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxslam.app.errors import RunError
 from jaxslam.datasets.paths import DataFormatError, DatasetNotFoundError
 
 
@@ -263,6 +265,20 @@ def write_with_figures(out: Path, write_files, arrays: dict | None) -> None:
         if arrays is not None:
             replot(out, arrays)
         files.result()
+
+
+def open_live_view(rerun_path, rerun_spawn: bool, name: str):
+    """The live view of a run (a :class:`jaxslam.viz.rerun_log.RerunLog` recording to
+    ``rerun_path`` or to a spawned viewer), None without either, or a RunError naming
+    the install command when rerun is missing."""
+    if rerun_path is None and not rerun_spawn:
+        return None
+    try:
+        from jaxslam.viz.rerun_log import RerunLog
+
+        return RerunLog(rerun_path, spawn=rerun_spawn, name=f"jaxslam {name}")
+    except ImportError as err:
+        raise RunError(f"--rerun/--rerun-spawn: {err}") from None
 
 
 def prefetch_plotting() -> threading.Thread:

@@ -31,7 +31,8 @@ from jaxslam.datasets.carmen import scan_range
 from jaxslam.datasets.registry import DEFAULT_ALGORITHM, algorithms
 from jaxslam.app.data import bag_options, is_bag, kind_of, load_checked_log, resolve_dataset
 from jaxslam.app.errors import RunError
-from jaxslam.app.outputs import marked_run, prefetch_plotting, prepare_folder, write_summary, write_with_figures
+from jaxslam.app.outputs import (marked_run, open_live_view, prefetch_plotting, prepare_folder, write_summary,
+                                 write_with_figures)
 
 DEFAULT_PARTICLES = {"landmark": 100, "laser": 30}
 
@@ -266,18 +267,6 @@ def localized_start(log, grid, seed: int, particles: int = LOCALIZE_PARTICLES, s
 # --------------------------------------------------------------------------- live view (Rerun)
 
 
-def _open_viz(rerun_path, rerun_spawn, name):
-    """A :class:`jaxslam.viz.rerun_log.RerunLog`, or a RunError naming the install command."""
-    if rerun_path is None and not rerun_spawn:
-        return None
-    try:
-        from jaxslam.viz.rerun_log import RerunLog
-
-        return RerunLog(rerun_path, spawn=rerun_spawn, name=f"jaxslam {name}")
-    except ImportError as err:
-        raise RunError(f"--rerun/--rerun-spawn: {err}") from None
-
-
 def _grid_live_log(viz, log, chunk):
     """Follow a grid run (its keyframes are collected as the run goes), one update per
     chunk of the run: the plain run's chunk, so the live view runs its compiled program."""
@@ -495,7 +484,7 @@ def _run_and_write(out, stage, run_args, info, path, kind, algorithm, particles,
         extra["start_map"] = _start_map(run_args["start_map"], None, False, kind, algorithm)
     if bag:
         extra["bag"] = bag
-    viz = _open_viz(rerun, rerun_spawn, Path(dataset_name).name)
+    viz = open_live_view(rerun, rerun_spawn, Path(dataset_name).name)
     if viz is not None:
         extra["viz"] = viz
     precision = jax.enable_x64(True) if float64 else contextlib.nullcontext()
