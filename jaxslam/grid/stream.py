@@ -33,7 +33,6 @@ Example::
 
 from __future__ import annotations
 
-import bisect
 import functools
 import time
 from types import SimpleNamespace
@@ -45,7 +44,7 @@ import numpy as np
 
 from jaxslam.runtime.compiler import jit
 from jaxslam.datasets.geometry import se2_between
-from jaxslam.datasets.rosbag import interpolate_odometry
+from jaxslam.datasets.odometry_queue import OdometryQueue
 from jaxslam.runtime.driver import step_keys
 from jaxslam.grid import driver
 from jaxslam.grid.algorithms import grid_algorithm
@@ -147,10 +146,7 @@ class StreamingGridSlam:
         self.stats = driver.RunStats()
         self.counts = {"scans": 0, "keyframes": 0, "scans_before_odometry": 0, "odometry_out_of_order": 0,
                        "recompilations": 0}
-        # Odometry messages (time-ordered) and scans waiting for newer odometry.
-        self._odom_times: list[float] = []
-        self._odom_poses: list[np.ndarray] = []
-        self._pending: list[tuple] = []
+        self._odometry = OdometryQueue(self.counts)  # odometry, and scans waiting for it
         # Every processed scan; keyframes and the filter outputs per keyframe.
         self.scan_times: list[float] = []
         self.odom_poses: list[np.ndarray] = []
@@ -172,15 +168,7 @@ class StreamingGridSlam:
 
         Returns the keyframe flags of the scans processed now (oldest first).
         """
-        pose = np.asarray(pose, np.float64).reshape(3)
-        if self._odom_times and stamp < self._odom_times[-1]:
-            self.counts["odometry_out_of_order"] += 1
-            at = bisect.bisect_right(self._odom_times, stamp)
-            self._odom_times.insert(at, float(stamp))
-            self._odom_poses.insert(at, pose)
-        else:
-            self._odom_times.append(float(stamp))
-            self._odom_poses.append(pose)
+        self._odometry.add_odometry(stamp, pose)
         return self._drain()
 
     def add_scan(self, stamp: float, ranges, valid=None, odom_pose=None, angle_offset: float = 0.0) -> list[bool]:
@@ -201,25 +189,12 @@ class StreamingGridSlam:
         if odom_pose is not None:
             return self._drain() + [self._process(float(stamp), ranges, valid, angle_offset,
                                                   np.asarray(odom_pose, np.float64).reshape(3))]
-        self._pending.append((float(stamp), ranges, valid, angle_offset))
+        self._odometry.add_scan(stamp, (ranges, valid, angle_offset))
         return self._drain()
 
     def _drain(self) -> list[bool]:
-        flags = []
-        while self._pending and self._odom_times:
-            stamp, ranges, valid, offset = self._pending[0]
-            if stamp > self._odom_times[-1]:
-                break  # wait for newer odometry
-            self._pending.pop(0)
-            if stamp < self._odom_times[0]:
-                self.counts["scans_before_odometry"] += 1
-                continue
-            # The two odometry messages around the stamp (O(log n) per scan on long runs).
-            at = max(bisect.bisect_right(self._odom_times, stamp) - 1, 0)
-            pose, _ = interpolate_odometry(np.asarray(self._odom_times[at : at + 2]),
-                                           np.asarray(self._odom_poses[at : at + 2]), [stamp])
-            flags.append(self._process(stamp, ranges, valid, offset, pose[0]))
-        return flags
+        return [self._process(stamp, ranges, valid, offset, pose)
+                for stamp, (ranges, valid, offset), pose in self._odometry.ready()]
 
     # ------------------------------------------------------------------ filter
 

@@ -27,7 +27,6 @@ Example::
 
 from __future__ import annotations
 
-import bisect
 import functools
 import time
 
@@ -36,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxslam.datasets.geometry import se2_between
-from jaxslam.datasets.rosbag import interpolate_odometry
+from jaxslam.datasets.odometry_queue import OdometryQueue
 from jaxslam.grid.mapfile import OccupancyMap
 from jaxslam.grid.types import Scan
 from jaxslam.localization.field import free_cell_centres, likelihood_field
@@ -133,14 +132,11 @@ class StreamingLocalizer:
         self._keys = None
         self.compile_s = 0.0
         self._compiled: set[int] = set()
-        # Odometry messages (time-ordered) and scans waiting for newer odometry.
-        self._odom_times: list[float] = []
-        self._odom_poses: list[np.ndarray] = []
-        self._pending: list[tuple] = []
         self.scan_times: list[float] = []
         self._last_odom: np.ndarray | None = None
         self._info: list[dict[str, np.ndarray]] = []  # per call, arrays with a leading scan axis
         self.counts = {"scans": 0, "scans_before_odometry": 0, "odometry_out_of_order": 0}
+        self._odometry = OdometryQueue(self.counts)  # odometry, and scans waiting for it
 
     @property
     def params_used(self) -> dict[str, float]:
@@ -154,12 +150,7 @@ class StreamingLocalizer:
 
         Returns whether each scan processed now was a measurement (oldest first).
         """
-        pose = np.asarray(pose, np.float64).reshape(3)
-        at = bisect.bisect_right(self._odom_times, float(stamp))
-        if at < len(self._odom_times):
-            self.counts["odometry_out_of_order"] += 1
-        self._odom_times.insert(at, float(stamp))
-        self._odom_poses.insert(at, pose)
+        self._odometry.add_odometry(stamp, pose)
         return self._drain()
 
     def add_scan(self, stamp: float, ranges, valid=None, odom_pose=None, angle_offset: float = 0.0) -> list[bool]:
@@ -174,7 +165,7 @@ class StreamingLocalizer:
             pose = np.asarray(odom_pose, np.float64).reshape(3)
             return self._drain() + [bool(self._run(np.array([stamp]), ranges[None], valid[None], pose[None],
                                                    np.array([angle_offset]), one=True)[0])]
-        self._pending.append((float(stamp), ranges, valid, float(angle_offset)))
+        self._odometry.add_scan(stamp, (ranges, valid, float(angle_offset)))
         return self._drain()
 
     def add_scans(self, stamps, ranges, valid, odom_poses, angle_offsets=None) -> np.ndarray:
@@ -200,21 +191,9 @@ class StreamingLocalizer:
         return ranges, np.asarray(valid, bool).reshape(-1) & np.isfinite(ranges)
 
     def _drain(self) -> list[bool]:
-        flags = []
-        while self._pending and self._odom_times:
-            stamp, ranges, valid, offset = self._pending[0]
-            if stamp > self._odom_times[-1]:
-                break  # wait for newer odometry
-            self._pending.pop(0)
-            if stamp < self._odom_times[0]:
-                self.counts["scans_before_odometry"] += 1
-                continue
-            at = max(bisect.bisect_right(self._odom_times, stamp) - 1, 0)
-            pose, _ = interpolate_odometry(np.asarray(self._odom_times[at: at + 2]),
-                                           np.asarray(self._odom_poses[at: at + 2]), [stamp])
-            flags.append(bool(self._run(np.array([stamp]), ranges[None], valid[None], pose, np.array([offset]),
-                                        one=True)[0]))
-        return flags
+        return [bool(self._run(np.array([stamp]), ranges[None], valid[None], pose[None], np.array([offset]),
+                               one=True)[0])
+                for stamp, (ranges, valid, offset), pose in self._odometry.ready()]
 
     # ------------------------------------------------------------------ filter
 
