@@ -438,7 +438,7 @@ def _plot(path, curves, kidnap_curves, table, args):
     if curves:
         left.legend(fontsize=7)
     for label, (distance, cut) in kidnap_curves.items():
-        line, = middle.plot(np.arange(len(distance)) - cut - 1, distance, lw=0.8, label=label)
+        middle.plot(np.arange(len(distance)) - cut - 1, distance, lw=0.8, label=label)
     middle.axvline(0, color="k", lw=0.6, ls=":")
     middle.axhline(0.5, color="tab:red", lw=0.6, ls=":")
     middle.set_yscale("log")
