@@ -88,12 +88,23 @@ def robustness_counts() -> dict[str, int]:
             "worst_at_or_under": sum(a["worst_mean_m"] <= b["worst_mean_m"] for a, b in zip(ours, cpp))}
 
 
+SPEED_FILES = ("end_to_end.json", "end_to_end_intel.json", "end_to_end_killian_vp.json")
+"""The whole-log end-to-end result files of one machine, newest first (the first-run
+table, :func:`first_run_table`, has its own file)."""
+
+
+def _current_rows(name: str) -> list[dict]:
+    """The rows of an end-to-end file measured with this checkout (``--tree new=.``, or no ``--tree``)."""
+    return [row for row in load(name)["rows"] if row.get("tree") in (None, "new")]
+
+
 def _speed_rows() -> dict[str, dict]:
-    """Each case's row from the newest file that ran it (``end_to_end.json`` first)."""
+    """Each whole-log case's row from the newest file that ran it (:data:`SPEED_FILES`)."""
     rows: dict[str, dict] = {}
-    for name in ("end_to_end.json", "end_to_end_intel.json", "end_to_end_killian_vp.json"):
-        for row in load(name)["rows"]:
-            rows.setdefault(row["case"], row)
+    for name in SPEED_FILES:
+        for row in _current_rows(name):
+            if row["case"] in SPEED_CASES:
+                rows.setdefault(row["case"], row)
     return rows
 
 
@@ -103,15 +114,41 @@ def speed_table() -> str:
     rows = []
     for case, row in _speed_rows().items():
         cpp = row.get("gmapping_process_s")
-        for mode in ("cold", "warm"):
+        modes = [mode for mode in ("cold", "warm") if row.get(f"{mode}_process_s") is not None]
+        for mode in modes:
             ratio = row.get(f"{mode}_speedup_process")
-            rows.append([SPEED_CASES[case] if mode == "cold" else "", mode,
+            rows.append([SPEED_CASES[case] if mode == modes[0] else "", mode,
                          f"{row[f'{mode}_process_s']:.1f} s", f"{row[f'{mode}_compile_s']:.2f} s",
                          f"{row[f'{mode}_wall_s']:.1f} s",
                          f"{cpp:.1f} s" if cpp and mode == "cold" else "",
                          f"{ratio:.2f}x" if ratio else ""])
     return _table(["case", "cache", "whole process", "compile", "filter loop", "GMapping C++ process",
                    "GMapping C++ / jaxslam"], rows)
+
+
+FIRST_RUN_CASES = {"intel200-bag": "Intel's first 200 keyframes as a ROS 2 bag, `srupf-gm`, 30",
+                   "intel200-sweep": "a sweep of 10, 20, 30, 50 and 100 particles on those 200 keyframes, one process",
+                   "intel-srupf-30": "Intel, `srupf-gm`, 30", "intel-gmapping-30": "Intel, `gmapping`, 30",
+                   "vp-erb-100": "Victoria Park, `erb-upf`, 100"}
+
+
+def first_run_table() -> str:
+    """What a first run pays before the filter works: compilation with an empty cache
+    (programs compiled, tracing and lowering among them) beside the filter loop and the
+    whole process, and the same with the filled cache."""
+    by_case = {row["case"]: row for row in _current_rows("end_to_end_first_run.json")}
+    rows = []
+    for case, label in FIRST_RUN_CASES.items():
+        row = by_case[case]
+        for mode in ("cold", "warm"):
+            if row.get(f"{mode}_process_s") is None:
+                continue
+            trace, lower = row.get(f"{mode}_trace_s"), row.get(f"{mode}_lower_s")
+            parts = f" (tracing {trace:.1f} s, lowering {lower:.1f} s)" if mode == "cold" and trace else ""
+            rows.append([label if mode == "cold" else "", mode, str(row[f"{mode}_compiled"]),
+                         f"{row[f'{mode}_compile_s']:.1f} s{parts}", f"{row[f'{mode}_wall_s']:.1f} s",
+                         f"{row[f'{mode}_process_s']:.1f} s"])
+    return _table(["case", "cache", "programs compiled", "compilation", "filter loop", "whole process"], rows)
 
 
 def landmark_table() -> str:
@@ -350,7 +387,7 @@ def localization_amcl_table() -> str:
 TABLES = {
     "robustness": robustness_table, "speed": speed_table, "landmark": landmark_table, "scale": scale_table,
     "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
-    "compile_cost": compile_cost_table, "path_agreement": path_agreement_table,
+    "compile_cost": compile_cost_table, "first_run": first_run_table, "path_agreement": path_agreement_table,
     "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
     "localization_global_runs": localization_global_runs_table, "localization_kidnap": localization_kidnap_table,
     "localization_amcl": localization_amcl_table,
@@ -364,6 +401,7 @@ TABLES = {
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
+            "first_run": "end_to_end_first_run.json",
             "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",
