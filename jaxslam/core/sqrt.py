@@ -52,9 +52,10 @@ def _chol_update_one(chol: Array, vec: Array, sign: Array) -> tuple[Array, Array
     n = chol.shape[-1]
     dtype = chol.dtype
     tiny = jnp.finfo(dtype).eps
-    ok = jnp.array(True)
     rows = jnp.arange(n)
-    for k in range(n):
+
+    def column(k, carry):
+        chol, vec, ok = carry
         lkk = chol[k, k]
         xk = vec[k]
         r2 = lkk * lkk + sign * xk * xk
@@ -67,9 +68,12 @@ def _chol_update_one(chol: Array, vec: Array, sign: Array) -> tuple[Array, Array
         below = rows > k
         col = chol[:, k]
         new_col = jnp.where(below, (col + sign * s * vec) / c, col)
-        new_col = new_col.at[k].set(r)
+        new_col = jnp.where(rows == k, r, new_col)
         vec = jnp.where(below, c * vec - s * new_col, vec)
-        chol = chol.at[:, k].set(new_col)
+        chol = jax.lax.dynamic_update_slice_in_dim(chol, new_col[:, None], k, axis=1)
+        return chol, vec, ok
+
+    chol, _, ok = jax.lax.fori_loop(0, n, column, (chol, vec, jnp.array(True)))
     return chol, ok
 
 
