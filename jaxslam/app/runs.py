@@ -200,6 +200,8 @@ def run_grid(info, path, algorithm, particles, seed, out, max_steps, overrides, 
                                               "--initial-pose" if initial_pose is not None else
                                               "the saved run's last pose" if start_map.pose is not None else
                                               "the map frame's origin")}
+        if result.start_match is not None:
+            summary["start_map"]["first_scan_match"] = result.start_match
         if localize_first:
             summary["start_map"]["localization"] = localized
     if path is not None and is_bag(path):

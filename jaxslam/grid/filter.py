@@ -268,6 +268,33 @@ def init(
     return _init(key, params, config, observation, initial_pose, start)
 
 
+@partial(jax.jit, static_argnames=("config",))
+def match_start(start, observation: Scan, pose: Array, params: GridSlamParams,
+                config: GridSlamConfig) -> tuple[Array, Array, Array]:
+    """The first scan of a continued run matched in the saved map, before it is written:
+    ``(pose, score at the given pose, score at the returned pose)``.
+
+    ``start`` is the saved map as one particle's paged maps
+    (:func:`jaxslam.grid.startmap.paged_start`), ``pose`` where the run is told to
+    start (``--initial-pose``, the saved run's last pose or the localizer's estimate).
+    A fresh run's first scan makes the map and needs no match; a continued run's
+    first scan lands in a map that already has walls, and a start pose a few
+    centimetres or a degree off would write it beside them. The match is the
+    keyframe matcher's unbounded form: the coarse stage (:func:`coarse_start`, GMapping's
+    wide kernel) then GMapping's hill climb on the narrow score, from ``pose``. A climb
+    only moves to a better score, so where the scan sees nothing of the saved map
+    (scores 0) the pose is kept."""
+    points, weights = match_geometry(observation, params, config)
+    points = points.astype(pose.dtype)
+    read = reader(start.pool, start.tables[0], start.corner, config.layout)
+    score_fn = scan_score_fn(read, points, weights, params, config)
+    begin = coarse_start(read, points, weights, pose, params, config)
+    best, score, _ = hill_climb(score_fn, begin, gmapping_basis(params, pose.dtype), config.match_iterations)
+    before = score_fn(pose[None])[0]
+    better = score > before
+    return jnp.where(better, best, pose), before, jnp.where(better, score, before)
+
+
 class ParticleUpdate(NamedTuple):
     """What a keyframe's proposal gives for each particle (``(N, ...)`` over the
     particles, or one particle's inside ``propose``, :func:`keyframe_update`).
@@ -454,6 +481,7 @@ __all__ = [
     "keyframe_update",
     "ParticleUpdate",
     "match_geometry",
+    "match_start",
     "particle_reader",
     "reset_status",
     "scan_angles",
