@@ -151,6 +151,18 @@ def first_run_table() -> str:
     return _table(["case", "cache", "programs compiled", "compilation", "filter loop", "whole process"], rows)
 
 
+def continue_map_table() -> str:
+    """The second part of a log continued from the first part's saved map, against the
+    whole log in one run, on the second part's relations."""
+    data = load("continue_map.json")
+    rows = [[str(r["seed"]), str(r["relations"]), f"{r['continued_trans_m']:.4f} m, {r['continued_rot_deg']:.3f} deg",
+             f"{r['whole_trans_m']:.4f} m, {r['whole_rot_deg']:.3f} deg", f"{r['ratio']:.2f}",
+             f"{100 * r['first_scan_match']['moved_m']:.1f} cm, {r['first_scan_match']['turned_deg']:.2f} deg"]
+            for r in data["runs"]]
+    return _table(["seed", "relations scored", "continued: mean error", "whole log: mean error",
+                   "continued / whole", "first scan's match moved it"], rows)
+
+
 def landmark_table() -> str:
     """Victoria Park, all scans: GPS error after rigid alignment over seeds."""
     data = load("erb_particles.json")
@@ -387,7 +399,8 @@ def localization_amcl_table() -> str:
 TABLES = {
     "robustness": robustness_table, "speed": speed_table, "landmark": landmark_table, "scale": scale_table,
     "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
-    "compile_cost": compile_cost_table, "first_run": first_run_table, "path_agreement": path_agreement_table,
+    "compile_cost": compile_cost_table, "first_run": first_run_table, "continue_map": continue_map_table,
+    "path_agreement": path_agreement_table,
     "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
     "localization_global_runs": localization_global_runs_table, "localization_kidnap": localization_kidnap_table,
     "localization_amcl": localization_amcl_table,
@@ -401,7 +414,7 @@ TABLES = {
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
-            "first_run": "end_to_end_first_run.json",
+            "first_run": "end_to_end_first_run.json", "continue_map": "continue_map.json",
             "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",
