@@ -241,6 +241,7 @@ def test_loop_closure_is_srupf_gms_default_can_be_turned_off_and_is_for_laser_da
                    "--no-progress", "--no-plots") == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["loop_closure"] is True and summary["closures"] >= 0
+    assert summary["tracking.refused_noise_scale"] == 0.5  # a parameter under its --set name
     assert isinstance(summary["closure_scans"], list)
     assert 0 <= summary["closures_undone"] <= summary["closures"] and isinstance(summary["undo_scans"], list)
     assert summary["closure_undone_at_end"] in (True, False)  # jaxslam.grid.undone_closures.judge_at_end
