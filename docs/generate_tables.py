@@ -163,6 +163,21 @@ def continue_map_table() -> str:
                    "continued / whole", "first scan's match moved it"], rows)
 
 
+def continue_localize_table() -> str:
+    """The second part started by localization in the saved map (``--localize-first``),
+    against the run started at the known pose."""
+    rows = []
+    for r in load("continue_map.json")["runs"]:
+        first = r.get("localize_first")
+        if first:
+            rows.append([str(r["seed"]), str(first["converged_scan"]), str(first["start_scan"]),
+                         f"{100 * first['start_offset_m']:.1f} cm, {first['start_offset_deg']:.2f} deg",
+                         f"{first['keyframes']} keyframes ({first['scans_compared']} scans)",
+                         f"{100 * first['max_gap_m']:.1f} cm"])
+    return _table(["seed", "localizer converged at scan", "mapping starts at scan",
+                   "start: apart from the known-pose run's", "mapped", "paths apart, at most"], rows)
+
+
 def landmark_table() -> str:
     """Victoria Park, all scans: GPS error after rigid alignment over seeds."""
     data = load("erb_particles.json")
@@ -400,6 +415,7 @@ TABLES = {
     "robustness": robustness_table, "speed": speed_table, "landmark": landmark_table, "scale": scale_table,
     "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
     "compile_cost": compile_cost_table, "first_run": first_run_table, "continue_map": continue_map_table,
+    "continue_localize": continue_localize_table,
     "path_agreement": path_agreement_table,
     "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
     "localization_global_runs": localization_global_runs_table, "localization_kidnap": localization_kidnap_table,
@@ -415,6 +431,7 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
             "first_run": "end_to_end_first_run.json", "continue_map": "continue_map.json",
+            "continue_localize": "continue_map.json",
             "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",
