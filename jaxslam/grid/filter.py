@@ -42,7 +42,9 @@ from jaxslam.core.resampling import (
 )
 from jaxslam.runtime.driver import best_particle
 from jaxslam.grid.paged import init_maps, ok_status, reader, resample_maps
-from jaxslam.grid.matching import Climb, EllipseBound, climbs_in_turn, get_matcher, gmapping_basis, hill_climb, search_bound
+from jaxslam.grid.matching import (
+    Climb, EllipseBound, climbs_in_turn, get_matcher, gmapping_basis, hill_climb, hill_climb_match, search_bound,
+)
 from jaxslam.grid.score import ScoreModel, beam_points, make_score_fn, scan_log_likelihood
 from jaxslam.grid.types import ClosureState, GridSlamConfig, GridSlamInfo, GridSlamParams, GridSlamState, Scan
 from jaxslam.grid.types import as_odometry
@@ -289,7 +291,7 @@ def match_start(start, observation: Scan, pose: Array, params: GridSlamParams,
     read = reader(start.pool, start.tables[0], start.corner, config.layout)
     score_fn = scan_score_fn(read, points, weights, params, config)
     begin = coarse_start(read, points, weights, pose, params, config)
-    best, score, _ = hill_climb(score_fn, begin, gmapping_basis(params, pose.dtype), config.match_iterations)
+    best, score = hill_climb_match(score_fn, begin, None, params, config.match_iterations)
     before = score_fn(pose[None])[0]
     better = score > before
     return jnp.where(better, best, pose), before, jnp.where(better, score, before)
