@@ -227,6 +227,31 @@ def feature_cost_table() -> str:
                    "relations over 0.5 m"], rows)
 
 
+def _srupf_runs(data: dict) -> dict[tuple[str, int], float]:
+    return {(r["log"], r["seed"]): r["mean_m"] for r in data["runs"] if r["filter"] == "srupf-gm"}
+
+
+def other_cpu_table() -> str:
+    """The same program and seeds on the suite's CPU and on another one: ``srupf-gm``'s
+    relations error per log, mean of the seeds' means (worst seed), the seeds over
+    twice the log's median seed, and the seeds that drew the same run on both."""
+    suite, other = load("robustness_suite.json"), load("robustness_other_cpu.json")
+    cpus = [f"CPU {d['machine']['cpu_family_model']}" for d in (suite, other)]
+    first, second = _srupf_runs(suite), _srupf_runs(other)
+    rows = []
+    for log in [log for log in RAW_LOGS + PERTURBED_LOGS if any(name == log for name, _ in second)]:
+        seeds = sorted(seed for (name, seed) in second if name == log and (name, seed) in first)
+        cells = []
+        for runs in (first, second):
+            errors = [runs[(log, seed)] for seed in seeds]
+            median = statistics.median(errors)
+            cells.append(f"{statistics.mean(errors):.3f} ({max(errors):.3f}), "
+                         f"{sum(e > 2 * median for e in errors)} over 2x median")
+        same = sum(first[(log, seed)] == second[(log, seed)] for seed in seeds)
+        rows.append([LOG_NAMES.get(log, log), f"{seeds[0]}-{seeds[-1]}", *cells, str(same)])
+    return _table(["log", "seeds", *cpus, "same run on both"], rows)
+
+
 def _tail(cell: dict) -> str:
     return f"{cell['tail_share']:.0%}, {cell['worst_max_m']:.2f} m"
 
@@ -415,7 +440,7 @@ TABLES = {
     "robustness": robustness_table, "speed": speed_table, "landmark": landmark_table, "scale": scale_table,
     "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
     "compile_cost": compile_cost_table, "first_run": first_run_table, "continue_map": continue_map_table,
-    "continue_localize": continue_localize_table,
+    "continue_localize": continue_localize_table, "other_cpu": other_cpu_table,
     "path_agreement": path_agreement_table,
     "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
     "localization_global_runs": localization_global_runs_table, "localization_kidnap": localization_kidnap_table,
@@ -431,7 +456,7 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
             "first_run": "end_to_end_first_run.json", "continue_map": "continue_map.json",
-            "continue_localize": "continue_map.json",
+            "continue_localize": "continue_map.json", "other_cpu": "robustness_other_cpu.json",
             "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",
