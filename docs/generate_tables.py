@@ -252,6 +252,19 @@ def other_cpu_table() -> str:
     return _table(["log", "seeds", *cpus, "same run on both"], rows)
 
 
+def tail_places_table() -> str:
+    """Per seed of a log, where its relations over 1 m lie (``5k-11k``: from a scan in
+    5000-5999 to one in 11000-11999) and the closures taken in the later stretch
+    (``scan:verdict/undone at``; ``R`` right, ``W`` wrong, ``?`` no relation to judge)."""
+    rows = []
+    for row in load("closure_diagnostics_killian.json")["bad_places"]:
+        seed = row["run"].rsplit("_s", 1)[1]
+        places = [f"{row[f'place_{k}']} ({row[f'closures_{k}']})" for k in (1, 2, 3) if f"place_{k}" in row]
+        rows.append([seed, f"{row['mean_m']:.3f}", str(row["over_1m"]), "; ".join(places)])
+    return _table(["seed", "mean error, m", "relations over 1 m",
+                   "largest groups: stretches, relations (closures in the later stretch)"], rows)
+
+
 def _tail(cell: dict) -> str:
     return f"{cell['tail_share']:.0%}, {cell['worst_max_m']:.2f} m"
 
@@ -441,6 +454,7 @@ TABLES = {
     "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
     "compile_cost": compile_cost_table, "first_run": first_run_table, "continue_map": continue_map_table,
     "continue_localize": continue_localize_table, "other_cpu": other_cpu_table,
+    "tail_places": tail_places_table,
     "path_agreement": path_agreement_table,
     "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
     "localization_global_runs": localization_global_runs_table, "localization_kidnap": localization_kidnap_table,
@@ -457,6 +471,7 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
             "first_run": "end_to_end_first_run.json", "continue_map": "continue_map.json",
             "continue_localize": "continue_map.json", "other_cpu": "robustness_other_cpu.json",
+            "tail_places": "closure_diagnostics_killian.json",
             "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",

@@ -46,6 +46,8 @@ after the closure against jump / travelled, by verdict). With ``--log``, a secon
 gives each run's relations error with and without the end's judgment of a closure still
 watched when the log ended (``end_judgment``;
 :func:`jaxslam.grid.undone_closures.judge_at_end`).
+A third table says where each run's relations over 1 m lie and which closures were taken
+there (``bad_places``, :func:`bad_places`).
 """
 
 from __future__ import annotations
@@ -80,6 +82,8 @@ TAKEN_BACK_SCANS = 10
 """Scans after a closure over which ``taken_back`` sums the heading error."""
 LEVEL_FROM_M, LEVEL_TO_M = 200.0, 20.0
 """Path before a closure (m) over which ``conflict_level`` averages the share."""
+PLACE_WINDOW = 1000
+"""Scans per stretch of the log in :func:`bad_places`."""
 
 
 def heading_taken_back(error: np.ndarray, c: int) -> tuple[float, float]:
@@ -211,6 +215,41 @@ def end_judgment(path: str, relations) -> dict:
     return row
 
 
+def _scan_label(scan: int) -> str:
+    return f"{scan // 1000}k" if scan and scan % 1000 == 0 else str(scan)
+
+
+def bad_places(path: str, relations, closure_rows: list[dict], threshold: float = 1.0,
+               window: int = PLACE_WINDOW, top: int = 3) -> dict:
+    """Where one run's relations go wrong: the relations over ``threshold`` (m) grouped
+    by the ``window``-scan stretches of their two scans (``5k-11k``: from a scan in
+    5000-5999 to one in 11000-11999), the ``top`` largest groups, and the closures
+    (``scan:verdict``, ``/undone_at``) taken in each group's later stretch. A return that
+    went wrong shows as one group from the place first seen to the place of the return;
+    a return without a closure there was never searched for, or the search found
+    nothing within its reach."""
+    from jaxslam.metrics.relations import match_timestamps, relation_errors
+
+    run = np.load(path)
+    stamps = run["scan_times"]
+    errors = relation_errors(relations, stamps, run["trajectory"])
+    first, _ = match_timestamps(relations.t1, stamps, 1e-6)
+    second, _ = match_timestamps(relations.t2, stamps, 1e-6)
+    bad = errors.matched & (errors.trans > threshold)
+    groups: dict[tuple[int, int], int] = {}
+    for a, b in zip(first[bad] // window, second[bad] // window):
+        key = (int(min(a, b)), int(max(a, b)))
+        groups[key] = groups.get(key, 0) + 1
+    name = Path(path).stem
+    row = {"run": name, "mean_m": float(np.nanmean(errors.trans)), f"over_{threshold:g}m": int(bad.sum())}
+    for rank, ((a, b), count) in enumerate(sorted(groups.items(), key=lambda item: -item[1])[:top]):
+        taken = [f"{r['scan']}:{r['verdict']}" + (f"/{r['undone_at']}" if r["undone_at"] is not None else "")
+                 for r in closure_rows if r["run"] == name and b * window <= r["scan"] < (b + 1) * window]
+        row[f"place_{rank + 1}"] = f"{_scan_label(a * window)}-{_scan_label(b * window)}: {count}"
+        row[f"closures_{rank + 1}"] = " ".join(taken) or "none"
+    return row
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", action="append", required=True, help="glob of saved runs (.npz); repeatable")
@@ -250,8 +289,11 @@ def main(argv=None) -> None:
     if ends:
         print_table(ends, ["run", "closures", "undone_at_end_scans", "mean_m", "max_m", "over_0.5",
                            "without_end_mean_m", "without_end_max_m", "without_end_over_0.5"])
+    places = [bad_places(p, relations, rows) for p in paths] if relations is not None else []
+    if places:
+        print_table(places, list(dict.fromkeys(key for row in places for key in row)))
     out = write_json(args.name, {"runs": paths, "log": args.log, "reference": args.reference, "closures": rows,
-                                 "summary": summary, "end_judgment": ends})
+                                 "summary": summary, "end_judgment": ends, "bad_places": places})
     name = Path(args.log).stem if args.log and Path(args.log).is_file() else (args.log or "runs")
     plot(rows, RESULTS / f"{args.name}.png", f"{name}: loop closures ({len(paths)} runs)")
     print(f"wrote {out} and {RESULTS / (args.name + '.png')}")

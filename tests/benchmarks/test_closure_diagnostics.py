@@ -14,18 +14,26 @@ closure_diagnostics = load_benchmark("diagnostics/closure_diagnostics")
 grid_common = load_benchmark("grid_common")
 
 
+def _right_then_wrong(n: int = 1000):
+    """``(truth, path, closed)``: a path along x, 0.1 m per scan, drifted 2 m sideways
+    from scan 400, put back on the truth by a closure at scan 700, then moved 3 m off
+    by one at scan 900 (``closed[i]`` is scan ``i + 1``)."""
+    truth = np.stack([0.1 * np.arange(n), np.zeros(n), np.zeros(n)], -1)
+    path = truth.copy()
+    path[400:700, 1] += 2.0
+    path[900:, 1] += 3.0
+    closed = np.zeros(n - 1, bool)
+    closed[[699, 899]] = True
+    return truth, path, closed
+
+
 def test_a_right_and_a_wrong_closure(tmp_path):
     """A path along x, 0.1 m per scan: drifted 2 m sideways from scan 400, put back on
     the truth by a closure at scan 700 (right), then moved 3 m off by one at scan 900
     (wrong). Relations from scans 100 and 150 (true poses) to scans 720 and 910 judge
     them."""
     n = 1000
-    truth = np.stack([0.1 * np.arange(n), np.zeros(n), np.zeros(n)], -1)
-    path = truth.copy()
-    path[400:700, 1] += 2.0
-    path[900:, 1] += 3.0
-    closed = np.zeros(n - 1, bool)
-    closed[[699, 899]] = True  # info[i] is scan i + 1
+    truth, path, closed = _right_then_wrong(n)
     conflict = np.zeros(n - 1)
     conflict[700:703] = [0.1, 0.3, 0.2]
     score = np.full(n - 1, 0.5)
@@ -134,3 +142,25 @@ def test_heading_taken_back_after_a_closure(tmp_path):
     rows = closure_diagnostics.closures(str(run), None, reference)
     assert rows[0]["heading_fix_deg"] == pytest.approx(-15.0) and rows[0]["taken_back"] == pytest.approx(1.0)
     assert "taken_back" not in closure_diagnostics.closures(str(run), None)[0]
+
+
+def test_bad_places_groups_the_wrong_relations_by_stretch_and_names_the_closures_there(tmp_path):
+    """The path of the first test, 3 m off from its wrong closure at scan 900: relations
+    from scans 100-149 to 900-949 are off by 3 m, those to 720-769 are right. With
+    stretches of 100 scans, one group (1-9, 50 relations) holds the wrong ones, and it
+    names the closure at 900 (wrong) but not the one at 700."""
+    n = 1000
+    truth, path, closed = _right_then_wrong(n)
+    run = tmp_path / "run.npz"
+    np.savez(run, trajectory=path, scan_times=np.arange(n, dtype=float), info_track_closed=closed,
+             info_track_conflict=np.zeros(n - 1), info_track_score=np.full(n - 1, 0.5))
+    pairs = [(a, a + 620) for a in range(100, 150)] + [(a, a + 800) for a in range(100, 150)]
+    deltas = [truth[b] - truth[a] for a, b in pairs]
+    relations = Relations(None, np.array([float(a) for a, _ in pairs]), np.array([float(b) for _, b in pairs]),
+                          np.array(deltas), np.arange(len(pairs)))
+    rows = closure_diagnostics.closures(str(run), relations)
+    place = closure_diagnostics.bad_places(str(run), relations, rows, window=100, top=2)
+    assert place["over_1m"] == 50 and place["mean_m"] == pytest.approx(1.5)
+    # scans 100-149 to 900-949: the stretches that start at scans 100 and 900
+    assert place["place_1"] == "100-900: 50" and place["closures_1"] == "900:W"
+    assert "place_2" not in place
