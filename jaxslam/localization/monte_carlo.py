@@ -85,18 +85,20 @@ class MclConfig:
         max_beams: beams used per measurement, evenly spaced over the scan (AMCL's
             ``laser_max_beams``).
         min_particles: the fewest particles in use after a resampling.
-        tiers: measurement sizes ``N, N/4, N/16, ...`` (at least ``min_particles``).
+        block: particles per block of the motion and measurement loops; 0 (default):
+            the power of two at or above ``min_particles``, at most 2048 and at most
+            the capacity (``block_size``).
     """
 
     capacity: int = 5000
     num_beams: int = 180
     max_beams: int = 60
     min_particles: int = 250
-    tiers: int = 4
+    block: int = 0
 
     def __post_init__(self):
-        if self.capacity < 1 or self.num_beams < 1 or self.max_beams < 1 or self.tiers < 1:
-            raise ValueError(f"capacity, num_beams, max_beams and tiers must be positive: {self}")
+        if self.capacity < 1 or self.num_beams < 1 or self.max_beams < 1 or self.block < 0:
+            raise ValueError(f"capacity, num_beams and max_beams must be positive, block >= 0: {self}")
         if not 1 <= self.min_particles <= self.capacity:
             raise ValueError(f"min_particles must lie in [1, capacity], got {self.min_particles}")
 
@@ -107,14 +109,21 @@ class MclConfig:
         return np.unique(np.round(np.linspace(0, self.num_beams - 1, count)).astype(np.int64))
 
     @property
-    def tier_sizes(self) -> tuple[int, ...]:
-        """Ascending particle counts the measurement is compiled for."""
-        sizes = {self.capacity}
-        for j in range(1, self.tiers):
-            size = self.capacity // 4**j
-            if size >= self.min_particles:
-                sizes.add(size)
-        return tuple(sorted(sizes))
+    def block_size(self) -> int:
+        """Particles per block: ``block``, or the power of two at or above ``min_particles``
+        (at most 2048), at most the capacity."""
+        size = self.block or min(2048, 1 << max(0, self.min_particles - 1).bit_length())
+        return min(self.capacity, size)
+
+    @property
+    def prefix_sizes(self) -> tuple[int, ...]:
+        """Ascending prefix lengths (``block 4^j``, then the capacity) that the sorts and
+        the weight arithmetic run on: the shortest holding the particles in use."""
+        sizes, size = [], self.block_size
+        while size < self.capacity:
+            sizes.append(size)
+            size *= 4
+        return (*sizes, self.capacity)
 
 
 class MclParams(NamedTuple):
@@ -233,41 +242,119 @@ def pose_bins(poses: Array, bin_xy, bin_theta) -> Array:
     return jnp.stack([ix, iy, it], -1).astype(jnp.int32)
 
 
-def _sorted_bins(bins: Array, mask: Array):
-    """Order putting the masked-in bins first, sorted; the flag of each first of a bin."""
-    order = jnp.lexsort((bins[:, 2], bins[:, 1], bins[:, 0], ~mask))
-    sorted_bins, sorted_mask = bins[order], mask[order]
-    changed = jnp.any(sorted_bins[1:] != sorted_bins[:-1], axis=-1) | (sorted_mask[1:] != sorted_mask[:-1])
-    first = jnp.concatenate([jnp.ones((1,), bool), changed])
-    return order, first, sorted_mask
+_NO_BIN = np.iinfo(np.int32).max  # the key of rows left out: after every bin's key
+
+
+def bin_keys(bins: Array) -> Array:
+    """``(N,)`` int32 key of each bin ``(ix, iy, itheta)``: 12 bits of ``ix``, 12 of ``iy``
+    and 6 of ``itheta``, in ``[0, 2^30)``.
+
+    Distinct bins have distinct keys while the bins span under 4,096 cells in x and in y
+    (2,048 m at 0.5 m bins) and the heading has at most 64 bins (bins of at least 5.6
+    deg; 36 at the default 10 deg); beyond that the coordinates wrap, and bins 4,096
+    cells apart (or headings 64 bins apart) share a key. A shared key only merges bins,
+    so the KLD count errs towards fewer bins and the mode towards a heavier one.
+    """
+    b = bins.astype(jnp.int32)
+    return ((b[:, 0] & 0xFFF) << 18) | ((b[:, 1] & 0xFFF) << 6) | (b[:, 2] & 0x3F)
+
+
+class Blocks(NamedTuple):
+    """How a step walks the slots in use: ``capacity`` slots in blocks of ``block``
+    (the last one starting at ``capacity - block`` at most), and the prefix lengths
+    ``sizes`` (ascending, the last the capacity) a sort runs on."""
+
+    capacity: int
+    block: int
+    sizes: tuple[int, ...]
+
+    def fold(self, num: Array, body, carry):
+        """``carry`` through ``body(start, fresh, carry)`` over the blocks holding slots
+        ``0 .. num-1``, ``fresh`` ``(block,)`` marking the block's slots below ``num``
+        that no block before it held (the last block may overlap the one before)."""
+
+        def step(b, acc):
+            start = jnp.minimum(b * self.block, self.capacity - self.block)
+            slot = start + jnp.arange(self.block)
+            return body(start, (slot >= b * self.block) & (slot < num), acc)
+
+        return jax.lax.fori_loop(0, (num + self.block - 1) // self.block, step, carry)
+
+    def rows(self, num: Array, fn, source, out):
+        """``out`` with ``fn(start, source[block rows])`` written over the blocks holding
+        slots ``0 .. num-1`` (``source``, ``out`` and what ``fn`` returns: arrays or trees
+        of arrays with the slots first; ``fn`` reads only ``source``, so a slot written
+        twice gets the same value)."""
+
+        def body(start, _, acc):
+            rows = jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, start, self.block), source)
+            return jax.tree.map(lambda a, v: jax.lax.dynamic_update_slice_in_dim(a, v, start, 0), acc,
+                                fn(start, rows))
+
+        return self.fold(num, body, out)
+
+    def sort(self, num: Array, keys: Array, *values: Array) -> tuple[Array, ...]:
+        """``keys`` ``(capacity,)`` sorted, ``values`` in the same order, for keys that
+        are ``_NO_BIN`` from slot ``num`` on: only the shortest prefix of ``sizes``
+        holding ``num`` slots is sorted."""
+
+        def branch(size):
+            def run(*arrays):
+                head = jax.lax.sort([x[:size] for x in arrays], num_keys=1)
+                return tuple(jnp.concatenate([h, x[size:]]) for h, x in zip(head, arrays))
+            return run
+
+        level = jnp.minimum(jnp.searchsorted(jnp.asarray(self.sizes), num), len(self.sizes) - 1)
+        return jax.lax.switch(level, [branch(size) for size in self.sizes], keys, *values)
+
+
+def _distinct(sorted_keys: Array) -> Array:
+    """Distinct keys other than ``_NO_BIN`` in sorted keys."""
+    first = jnp.concatenate([jnp.ones((1,), bool), sorted_keys[1:] != sorted_keys[:-1]])
+    return jnp.sum(first & (sorted_keys != _NO_BIN)).astype(jnp.int32)
 
 
 def count_bins(bins: Array, mask: Array) -> Array:
-    """Distinct bins among the rows of ``bins`` where ``mask``."""
-    _, first, sorted_mask = _sorted_bins(bins, mask)
-    return jnp.sum(first & sorted_mask).astype(jnp.int32)
+    """Distinct bins (distinct :func:`bin_keys`) among the rows of ``bins`` where ``mask``."""
+    return _distinct(jnp.sort(jnp.where(mask, bin_keys(bins), _NO_BIN)))
 
 
-def mode_estimate(poses: Array, log_weights: Array, bin_xy, bin_theta) -> tuple[Array, Array, Array]:
-    """``(estimate (3,), cluster_weight, spread)``: the weighted circular mean within 1.5
-    bins of the heaviest bin, its weight, and the cloud's weighted xy spread."""
-    weights = jnp.exp(normalize_log_weights(log_weights))
-    bins = pose_bins(poses, bin_xy, bin_theta)
-    order, first, sorted_mask = _sorted_bins(bins, weights > 0)
-    segment = jnp.cumsum(first) - 1
-    mass = jax.ops.segment_sum(weights[order], segment, num_segments=poses.shape[0])
-    best = jnp.argmax(mass)
-    anchor = bins[order][jnp.argmax(segment == best)].astype(poses.dtype)
+def _mode(blocks: Blocks, num: Array, poses: Array, log_weights: Array, bin_xy, bin_theta):
+    """:func:`mode_estimate` of the slots below ``num`` (slot 0 in use); the others are never read."""
+    dtype = poses.dtype
+    held = (jnp.arange(blocks.capacity) < num) & (log_weights > -jnp.inf)
+    weights = jnp.where(held, jnp.exp(normalize_log_weights(jnp.where(held, log_weights, -jnp.inf))), 0.0)
+    poses = jnp.where(held[:, None], poses, poses[0])
+    no_bin = jnp.full((blocks.capacity,), _NO_BIN, jnp.int32)
+    keys = blocks.rows(num, lambda start, rows: bin_keys(pose_bins(rows, bin_xy, bin_theta)), poses, no_bin)
+    keys = jnp.where(held, keys, _NO_BIN)
+    ordered, ordered_weights = blocks.sort(num, keys, weights)
+    # each bin's mass: the running sum at its last place less the one before its first
+    total = jnp.cumsum(ordered_weights)
+    first = jnp.concatenate([jnp.ones((1,), bool), ordered[1:] != ordered[:-1]])
+    last = jnp.concatenate([ordered[1:] != ordered[:-1], jnp.ones((1,), bool)]) & (ordered != _NO_BIN)
+    before = jax.lax.cummax(jnp.where(first, total - ordered_weights, 0.0))
+    best = ordered[jnp.argmax(jnp.where(last, total - before, -1.0))]
+    anchor = pose_bins(poses[jnp.argmax(keys == best)][None], bin_xy, bin_theta)[0]
+    anchor = anchor.astype(dtype)
     centre_xy = (anchor[:2] + 0.5) * bin_xy
     centre_t = (anchor[2] + 0.5) * bin_theta - math.pi
     near = (jnp.all(jnp.abs(poses[:, :2] - centre_xy) <= 1.5 * bin_xy, -1)
             & (jnp.abs(se2.wrap_angle(poses[:, 2] - centre_t)) <= 1.5 * bin_theta))
-    local = jnp.where(near, weights, 0.0)
+    local = jnp.where(near & held, weights, 0.0)
     cluster_weight = jnp.sum(local)
-    estimate = se2.pose_mean(poses, local / jnp.maximum(cluster_weight, jnp.finfo(poses.dtype).tiny))
+    estimate = se2.pose_mean(poses, local / jnp.maximum(cluster_weight, jnp.finfo(dtype).tiny))
     mean_xy = jnp.sum(weights[:, None] * poses[:, :2], 0)
     spread = jnp.sqrt(jnp.sum(weights * jnp.sum(jnp.square(poses[:, :2] - mean_xy), -1)))
     return estimate, cluster_weight, spread
+
+
+def mode_estimate(poses: Array, log_weights: Array, bin_xy, bin_theta) -> tuple[Array, Array, Array]:
+    """``(estimate (3,), cluster_weight, spread)``: the weighted circular mean within 1.5
+    bins of the heaviest bin, its weight, and the cloud's weighted xy spread (rows of
+    weight zero are not read; row 0 must have weight)."""
+    n = poses.shape[0]
+    return _mode(Blocks(n, n, (n,)), jnp.asarray(n), poses, log_weights, bin_xy, bin_theta)
 
 
 def tempering_power(log_weights: Array, loglik: Array, max_power, min_ess, iterations: int = 20) -> Array:
@@ -335,10 +422,12 @@ def mcl(config: MclConfig, params: MclParams) -> ParticleFilter:
         ``(3,)``; ``step(key, state, increment (3,), scan)`` as in the module docstring.
     """
     capacity = config.capacity
+    blocks = Blocks(capacity, config.block_size, config.prefix_sizes)
+    block = blocks.block
     beams = jnp.asarray(config.beam_indices)
-    tiers = config.tier_sizes
     dtype = params.field.distance.dtype
-    slots = jnp.arange(capacity)
+    slots = jnp.arange(capacity, dtype=jnp.int32)
+    no_bin = jnp.full((capacity,), _NO_BIN, jnp.int32)
 
     def init(key: Array, pose: Array | None = None, pose_std: Array | None = None) -> MclState:
         if pose is None:
@@ -356,42 +445,36 @@ def mcl(config: MclConfig, params: MclParams) -> ParticleFilter:
             travel=jnp.full((2,), jnp.inf, dtype),
         )
 
-    def measure(poses: Array, scan: Scan) -> tuple[Array, Array]:
-        ranges = scan.ranges[beams].astype(dtype)
-        use = scan.valid[beams] & jnp.isfinite(ranges) & (ranges > 0) & (ranges < params.max_range)
-        angles = params.beam_angles[beams] + jnp.asarray(scan.angle_offset, dtype)
-
-        def tier(size):
-            def evaluate(all_poses):
-                part = jax.vmap(scan_log_likelihood, (None, 0, None, None, None))(
-                    params, all_poses[:size], ranges, use, angles)
-                return jnp.concatenate([part, jnp.zeros((capacity - size,), dtype)])
-            return evaluate
-
-        return use, (tiers, [tier(size) for size in tiers])
-
     def step(key: Array, state: MclState, control: Array, observation: Scan) -> tuple[MclState, MclInfo]:
         chex.assert_shape(control, (3,))
         chex.assert_shape(state.poses, (capacity, 3))
-        k_motion, k_kld, k_draw, k_coin, k_free = jax.random.split(key, 5)
+        k_motion, k_draw, k_coin, k_free = jax.random.split(key, 4)
         increment = jnp.asarray(control, dtype)
-        motion_keys = jax.random.split(k_motion, capacity)
-        poses = jax.vmap(sample_gmapping, (0, 0, None, None, None, None, None))(
-            motion_keys, state.poses, increment, params.srr, params.srt, params.str_, params.stt)
+        num = state.num_active
+        active = slots < num
+
+        def move(start, rows):
+            # a key per slot: a particle's draw does not depend on the blocks that run
+            keys = jax.vmap(jax.random.fold_in, (None, 0))(k_motion, start + jnp.arange(block))
+            return jax.vmap(sample_gmapping, (0, 0, None, None, None, None, None))(
+                keys, rows, increment, params.srr, params.srt, params.str_, params.stt)
+
+        poses = blocks.rows(num, move, state.poses, state.poses)
         travel = state.travel + jnp.stack([jnp.hypot(increment[0], increment[1]), jnp.abs(increment[2])])
-        use, (sizes, branches) = measure(poses, observation)
+        ranges = observation.ranges[beams].astype(dtype)
+        use = observation.valid[beams] & jnp.isfinite(ranges) & (ranges > 0) & (ranges < params.max_range)
+        angles = params.beam_angles[beams] + jnp.asarray(observation.angle_offset, dtype)
         used_beams = jnp.sum(use)
         updated = ((travel[0] >= params.update_min_d) | (travel[1] >= params.update_min_a)) & (used_beams > 0)
-        active = slots < state.num_active
-        tier_index = jnp.searchsorted(jnp.asarray(sizes), state.num_active)
 
-        def likelihood(p):
-            return jax.lax.switch(jnp.minimum(tier_index, len(sizes) - 1), branches, p)
+        def measure(start, rows):
+            return jax.vmap(scan_log_likelihood, (None, 0, None, None, None))(params, rows, ranges, use, angles)
 
-        loglik = jax.lax.cond(updated, likelihood, lambda p: jnp.zeros((capacity,), dtype), poses)
+        zeros = jnp.zeros((capacity,), dtype)
+        loglik = jax.lax.cond(updated, lambda p: blocks.rows(num, measure, p, zeros), lambda p: zeros, poses)
         loglik = jnp.where(active & jnp.isfinite(loglik), loglik, jnp.where(active, -jnp.inf, 0.0))
-        prior = state.log_weights
-        power = tempering_power(prior, loglik, params.likelihood_power, params.tempering_ess * state.num_active)
+        prior = jnp.where(active, state.log_weights, -jnp.inf)
+        power = tempering_power(prior, loglik, params.likelihood_power, params.tempering_ess * num)
         power = jnp.where(updated, power, 0.0)
         tempered = prior + power * loglik
         increment_ll = jnp.where(updated, logsumexp(tempered), 0.0)
@@ -401,33 +484,56 @@ def mcl(config: MclConfig, params: MclParams) -> ParticleFilter:
         w_fast = jnp.where(state.w_fast > 0, state.w_fast + params.alpha_fast * (w_avg - state.w_fast), w_avg)
         w_slow = jnp.where(updated, w_slow, state.w_slow)
         w_fast = jnp.where(updated, w_fast, state.w_fast)
-        log_weights = jnp.where(updated, normalize_log_weights(jnp.where(active, tempered, -jnp.inf)), prior)
+        log_weights = jnp.where(updated, normalize_log_weights(tempered), prior)
         ess = effective_sample_size(log_weights)
         inject_p = jnp.maximum(0.0, 1.0 - safe_divide(w_fast, w_slow, 1.0, updated & (w_slow > 0)))
         inject_p = jnp.where(inject_p > params.inject_trigger, inject_p, 0.0)
-        n = state.num_active.astype(dtype)
-        resampled = updated & ((ess < params.ess_threshold * n) | (inject_p > 0))
-        estimate, cluster_weight, spread = mode_estimate(poses, log_weights, params.bin_xy, params.bin_theta)
+        resampled = updated & ((ess < params.ess_threshold * num.astype(dtype)) | (inject_p > 0))
+        estimate, cluster_weight, spread = _mode(blocks, num, poses, log_weights, params.bin_xy, params.bin_theta)
+
+        def draw(key, m, start):
+            # rows start .. start+block of a systematic draw of m from the weights, each
+            # replaced by a free-space pose with probability p: (ancestor or -1, pose)
+            cdf = jnp.cumsum(jnp.exp(log_weights))
+            at = (start + jnp.arange(block) + jax.random.uniform(key, (), dtype)) / m.astype(dtype) * cdf[-1]
+            ancestor = jnp.clip(jnp.searchsorted(cdf, at, side="right"), 0, num - 1).astype(jnp.int32)
+            coin = jax.random.uniform(jax.random.fold_in(k_coin, start), (block,), dtype) < inject_p
+            fresh = sample_free_poses(jax.random.fold_in(k_free, start), params.free_cells, params.field.resolution,
+                                      params.field.origin[2], block)
+            return jnp.where(coin, -1, ancestor), jnp.where(coin[:, None], fresh, poses[ancestor])
 
         def resample(_):
-            # a capacity-size draw from the weights (shuffled: any prefix is a fair
-            # sample), each draw replaced by a free-space pose with probability p
-            draw = systematic(k_draw, log_weights)[jax.random.permutation(k_kld, capacity)]
-            inject = jax.random.uniform(k_coin, (capacity,), dtype) < inject_p
-            fresh = sample_free_poses(k_free, params.free_cells, params.field.resolution, params.field.origin[2],
-                                      capacity)
-            mixed = jnp.where(inject[:, None], fresh, poses[draw])
-            # KLD: the bins the draw occupies size the new cloud (its first new_n)
-            bins = count_bins(pose_bins(mixed, params.bin_xy, params.bin_theta), jnp.ones((capacity,), bool))
-            target = kld_bound(bins, params.kld_epsilon, params.kld_z)
-            new_n = jnp.clip(jnp.ceil(target), config.min_particles, capacity).astype(jnp.int32)
+            # KLD: the bins of a draw of the particles in use (all of the capacity when
+            # injecting: a uniform cloud needs them) bound the cloud; while the bound asks
+            # for more than drawn, draw twice as many; when it asks for fewer, the cloud
+            # is a draw of that many (the same rule)
+            def more(carry):
+                m, final, bins, _, done = carry
+
+                def draw_rows(start, _):
+                    ancestor, mixed = draw(k_draw, m, start)
+                    keys = bin_keys(pose_bins(mixed, params.bin_xy, params.bin_theta))
+                    return mixed, ancestor, jnp.where(start + jnp.arange(block) < m, keys, _NO_BIN)
+
+                drawn = blocks.rows(m, draw_rows, no_bin, (poses, slots, no_bin))
+                counted = _distinct(blocks.sort(m, drawn[2])[0])
+                target = jnp.clip(jnp.ceil(kld_bound(counted, params.kld_epsilon, params.kld_z)),
+                                  config.min_particles, capacity).astype(jnp.int32)
+                grow = ~final & (target > m) & (m < capacity)
+                shrink = ~final & ~grow & (target < m)
+                next_m = jnp.where(grow, jnp.minimum(2 * m, capacity), jnp.where(shrink, target, m))
+                return next_m, shrink, jnp.where(final, bins, counted), drawn[:2], ~grow & ~shrink
+
+            first = jnp.where(inject_p > 0, capacity, num).astype(jnp.int32)
+            start = (first, jnp.zeros((), bool), jnp.zeros((), jnp.int32), (poses, slots), jnp.zeros((), bool))
+            new_n, _, bins, (new_poses, ancestors), _ = jax.lax.while_loop(lambda c: ~c[-1], more, start)
             in_use = slots < new_n
-            return (mixed, jnp.where(in_use, -jnp.log(new_n.astype(dtype)), -jnp.inf).astype(dtype), new_n,
-                    jnp.where(inject, -1, draw).astype(jnp.int32), jnp.sum(inject & in_use).astype(jnp.int32), bins)
+            ancestors = jnp.where(in_use, ancestors, slots)
+            return (new_poses, jnp.where(in_use, -jnp.log(new_n.astype(dtype)), -jnp.inf).astype(dtype), new_n,
+                    ancestors, jnp.sum(in_use & (ancestors < 0)).astype(jnp.int32), bins)
 
         def keep(_):
-            return (poses, log_weights, state.num_active, slots.astype(jnp.int32), jnp.zeros((), jnp.int32),
-                    jnp.zeros((), jnp.int32))
+            return (poses, log_weights, num, slots, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
 
         new_poses, new_log_weights, new_n, ancestors, injected, bins = jax.lax.cond(resampled, resample, keep, None)
         new_state = MclState(
@@ -452,6 +558,7 @@ __all__ = [
     "MclInfo",
     "MclParams",
     "MclState",
+    "bin_keys",
     "count_bins",
     "default_params",
     "kld_bound",

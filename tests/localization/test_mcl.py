@@ -13,8 +13,10 @@ from hypothesis import strategies as st
 
 from jaxslam.core.resampling import effective_sample_size
 from jaxslam.grid.mapfile import segment_map
-from jaxslam.localization.experiment import localize, summary, tracking_errors
-from jaxslam.localization.monte_carlo import count_bins, kld_bound, mode_estimate, pose_bins, tempering_power
+from jaxslam.grid.types import Scan
+from jaxslam.localization.experiment import localize, make_filter_inputs, summary, tracking_errors
+from jaxslam.localization.monte_carlo import (MclConfig, bin_keys, count_bins, kld_bound, mcl, mode_estimate, pose_bins,
+                                              sample_free_poses, tempering_power)
 from tests.localization.worlds import BOUNDS, crate_world, kidnapped_poses, laser_log, ring_poses
 
 CHUNK = 128
@@ -105,6 +107,72 @@ def test_converges_from_a_uniform_start(world):
     assert start < 60  # within 12 s of log time, and then it stays
     assert result.info["particles"][0] == 40000 and result.info["particles"][-1] < 5000
     assert summary(result)["converged"]
+
+
+def test_bin_keys_tell_apart_the_bins_of_a_building():
+    ix, iy, it = np.meshgrid(np.arange(-300, 300, 7), np.arange(-300, 300, 5), np.arange(0, 36), indexing="ij")
+    bins = np.stack([ix.ravel(), iy.ravel(), it.ravel()], -1).astype(np.int32)
+    keys = np.asarray(bin_keys(jnp.asarray(bins)))
+    assert np.unique(keys).size == bins.shape[0] and keys.min() >= 0 and keys.max() < 2**30
+
+
+def _filter(world, capacity=512, block=64, **overrides):
+    walls, grid = world
+    log = laser_log(walls, ring_poses()[:2], seed=0)
+    config, params = make_filter_inputs(log, grid, capacity, overrides=overrides, min_particles=100)
+    config = MclConfig(capacity=capacity, num_beams=config.num_beams, max_beams=config.max_beams,
+                       min_particles=config.min_particles, block=block)
+    scan = Scan(jnp.asarray(log.ranges[0]), jnp.asarray(log.valid[0]), jnp.zeros((), jnp.float32))
+    return mcl(config, params), params, log, scan
+
+
+def _in_use(state, num, filler):
+    """``state`` with only the first ``num`` slots in use, the others holding ``filler``."""
+    slots = jnp.arange(state.poses.shape[0])
+    weights = jnp.where(slots < num, -jnp.log(float(num)), -jnp.inf)
+    poses = jnp.where((slots < num)[:, None], state.poses, filler)
+    return state._replace(poses=poses, log_weights=weights.astype(state.log_weights.dtype),
+                          num_active=jnp.asarray(num, jnp.int32))
+
+
+@pytest.mark.parametrize("jit", [True, False], ids=["jit", "no-jit"])
+@pytest.mark.parametrize("ess_threshold", [0.0, 1.1], ids=["no-resampling", "resampling"])
+@settings(max_examples=3, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), num=st.integers(100, 500))
+def test_slots_not_in_use_change_nothing(world, jit, ess_threshold, seed, num):
+    filt, params, log, scan = _filter(world, ess_threshold=ess_threshold)
+    step = jax.jit(filt.step) if jit else filt.step
+    state = filt.init(jax.random.key(seed), jnp.asarray(log.true_poses[0], jnp.float32), jnp.asarray([0.3, 0.3, 0.1]))
+    control = jnp.asarray([0.1, 0.0, 0.02], jnp.float32)
+    key = jax.random.key(seed + 1)
+    garbage = np.random.default_rng(seed).uniform(-1e6, 1e6, (512, 3)).astype(np.float32)
+    results = [step(key, _in_use(state, num, filler), control, scan)
+               for filler in (jnp.nan, jnp.asarray(garbage), 0.0)]
+    (ref_state, ref_info), others = results[0], results[1:]
+    n = int(ref_state.num_active)
+    for new_state, info in others:
+        assert int(new_state.num_active) == n
+        np.testing.assert_array_equal(np.asarray(new_state.poses[:n]), np.asarray(ref_state.poses[:n]))
+        np.testing.assert_array_equal(np.asarray(new_state.log_weights), np.asarray(ref_state.log_weights))
+        for field in ("estimate", "cluster_weight", "spread", "ess", "occupied_bins", "resampled", "injected"):
+            np.testing.assert_array_equal(np.asarray(getattr(info, field)), np.asarray(getattr(ref_info, field)))
+    assert np.all(np.isfinite(np.asarray(ref_state.poses[:n]))) and np.isfinite(np.asarray(ref_info.estimate)).all()
+    assert bool(ref_info.resampled) == (ess_threshold > 1)
+
+
+def test_a_spread_cloud_with_few_in_use_draws_more_than_it_had(world):
+    capacity = 4096
+    filt, params, log, scan = _filter(world, capacity=capacity, block=128, ess_threshold=1.1, likelihood_power=1e-6)
+    state = filt.init(jax.random.key(0))  # uniform over the free space
+    state = _in_use(state, 100, jnp.nan)
+    new_state, info = jax.jit(filt.step)(jax.random.key(1), state, jnp.zeros(3, jnp.float32), scan)
+    assert bool(info.resampled)
+    # the 100 in use occupy about 100 bins, whose bound asks for thousands: the draw
+    # grows past the first 100 to the bound
+    bound = math.ceil(float(kld_bound(info.occupied_bins, params.kld_epsilon, params.kld_z)))
+    assert int(info.occupied_bins) > 90 and bound > 3000
+    assert int(new_state.num_active) == min(bound, capacity)
+    assert np.all(np.isfinite(np.asarray(new_state.poses[:int(new_state.num_active)])))
 
 
 @pytest.mark.long
