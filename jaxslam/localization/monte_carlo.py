@@ -126,8 +126,8 @@ class MclConfig:
 
     @property
     def block_size(self) -> int:
-        """Particles per block: ``block``, or the power of two at or above ``min_particles``
-        (at most 2048), at most the capacity."""
+        """The particles of a block (``block``, or the power of two at or above
+        ``min_particles`` and at most 2048), at most the capacity."""
         size = self.block or min(2048, 1 << max(0, self.min_particles - 1).bit_length())
         return min(self.capacity, size)
 
