@@ -81,7 +81,7 @@ from jax.scipy.special import logsumexp
 from jaxslam.base import ParticleFilter
 from jaxslam.core import se2
 from jaxslam.core.numerics import safe_divide
-from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, systematic
+from jaxslam.core.resampling import effective_sample_size, normalize_log_weights, systematic_rows
 from jaxslam.grid.types import Scan
 from jaxslam.localization.field import LikelihoodField, beam_log_likelihood, distance_at
 from jaxslam.models.odometry import sample_gmapping
@@ -496,12 +496,10 @@ def mcl(config: MclConfig, params: MclParams) -> ParticleFilter:
         resampled = updated & ((ess < params.ess_threshold * num.astype(dtype)) | (inject_p > 0))
         estimate, cluster_weight, spread = _mode(blocks, num, poses, log_weights, params.bin_xy, params.bin_theta)
 
-        def draw(key, m, start):
+        def draw(key, cdf, m, start):
             # rows start .. start+block of a systematic draw of m from the weights, each
             # replaced by a free-space pose with probability p: (ancestor or -1, pose)
-            cdf = jnp.cumsum(jnp.exp(log_weights))
-            at = (start + jnp.arange(block) + jax.random.uniform(key, (), dtype)) / m.astype(dtype) * cdf[-1]
-            ancestor = jnp.clip(jnp.searchsorted(cdf, at, side="right"), 0, num - 1).astype(jnp.int32)
+            ancestor = jnp.clip(systematic_rows(key, cdf, m, start, block), 0, num - 1).astype(jnp.int32)
             coin = jax.random.uniform(jax.random.fold_in(k_coin, start), (block,), dtype) < inject_p
             fresh = sample_free_poses(jax.random.fold_in(k_free, start), params.free_cells, params.field.resolution,
                                       params.field.origin[2], block)
@@ -512,11 +510,13 @@ def mcl(config: MclConfig, params: MclParams) -> ParticleFilter:
             # injecting: a uniform cloud needs them) bound the cloud; while the bound asks
             # for more than drawn, draw twice as many; when it asks for fewer, the cloud
             # is a draw of that many (the same rule)
+            cdf = jnp.cumsum(jnp.exp(log_weights))  # once per resampling, read by every block of every draw
+
             def more(carry):
                 m, final, bins, _, done = carry
 
                 def draw_rows(start, _):
-                    ancestor, mixed = draw(k_draw, m, start)
+                    ancestor, mixed = draw(k_draw, cdf, m, start)
                     keys = bin_keys(pose_bins(mixed, params.bin_xy, params.bin_theta))
                     return mixed, ancestor, jnp.where(start + jnp.arange(block) < m, keys, _NO_BIN)
 

@@ -127,3 +127,19 @@ def test_selective_resample_no_recompile_on_threshold_change():
 def test_unknown_method_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown resampler"):
         selective_resample(jax.random.PRNGKey(0), jnp.zeros(3), 0.5, method="bogus")
+
+
+@pytest.mark.parametrize("block", [1, 7, 32])
+def test_systematic_rows_block_by_block_are_the_systematic_draw(block):
+    """The rows of a draw of ``num`` taken block by block, on the unnormalised running
+    sum of the weights, are :func:`systematic`'s indices for the same key (float64),
+    for a draw the size of the weights and a smaller one."""
+    with jax.enable_x64(True):
+        rng = np.random.default_rng(block)
+        log_weights = jnp.asarray(rng.normal(size=64) * 2.0)
+        key = jax.random.PRNGKey(3)
+        cdf = jnp.cumsum(jnp.exp(log_weights))
+        for num in (64, 40):
+            rows = [resampling.systematic_rows(key, cdf, num, start, block) for start in range(0, num, block)]
+            drawn = np.concatenate([np.asarray(r) for r in rows])[:num]
+            np.testing.assert_array_equal(drawn, np.asarray(resampling.systematic(key, log_weights, num)))
