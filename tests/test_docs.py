@@ -104,3 +104,41 @@ def test_every_kept_result_is_cited():
                                              *sorted((ROOT / "notebooks").glob("*.ipynb"))])
     kept = sorted(p.name for p in (ROOT / "benchmarks" / "results").iterdir())
     assert kept and not [name for name in kept if name not in cited]
+
+
+SENTENCE_END = re.compile(r"\.\s+")
+
+
+def summary_sentence(doc: str) -> str:
+    """The first sentence of a docstring's first paragraph, cut where the API page's
+    summary table cuts it (a period followed by white space)."""
+    paragraph = " ".join(doc.strip().split("\n\n", 1)[0].split())
+    return SENTENCE_END.split(paragraph, 1)[0]
+
+
+def public_docstrings():
+    """(name, docstring) of every module and every public function or class it defines."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import jaxslam
+    for info in pkgutil.walk_packages(jaxslam.__path__, "jaxslam."):
+        module = importlib.import_module(info.name)
+        yield info.name, inspect.getdoc(module) or ""
+        for name, member in vars(module).items():
+            if (not name.startswith("_") and (inspect.isfunction(member) or inspect.isclass(member))
+                    and getattr(member, "__module__", None) == info.name):
+                yield f"{info.name}.{name}", inspect.getdoc(member) or ""
+
+
+def test_summary_sentences_close_their_literals():
+    """A literal cut open by the summary table's first sentence is a Sphinx warning, which
+    fails the documentation build."""
+    bad = [name for name, doc in public_docstrings() if summary_sentence(doc).count("``") % 2]
+    assert not bad, bad
+
+
+def test_an_open_literal_in_a_summary_is_caught():
+    assert summary_sentence("Rows ``a .. b`` of a draw.").count("``") % 2
+    assert not summary_sentence("Rows ``a`` to ``b`` of a draw. More.").count("``") % 2

@@ -83,11 +83,13 @@ def systematic(key: Array, log_weights: Array, num: int | None = None) -> Array:
 
 
 def systematic_rows(key: Array, cdf: Array, num: Array, start: Array, size: int) -> Array:
-    """Rows ``start .. start + size - 1`` of a systematic draw of ``num`` indices (``num``
-    and ``start`` may be traced): positions ``(i + u) / num`` on the weights' running
-    sum ``cdf`` (of any scale, e.g. ``jnp.cumsum(jnp.exp(log_weights))``), with the one
-    offset ``u`` of :func:`systematic` for the same key. Drawing a sample block by block
-    in this way, the caller computes ``cdf`` once; indices past the last weight are
+    """A block of ``size`` consecutive rows of a systematic draw of ``num`` indices.
+
+    The rows are ``start`` to ``start + size - 1`` (``num`` and ``start`` may be
+    traced): positions ``(i + u) / num`` on the weights' running sum ``cdf`` (of any
+    scale, e.g. ``jnp.cumsum(jnp.exp(log_weights))``), with the one offset ``u`` of
+    :func:`systematic` for the same key. Drawing a sample block by block in this way,
+    the caller computes ``cdf`` once; indices past the last weight are
     ``cdf.shape[0]`` (the caller clips them to the weights it holds)."""
     dtype = cdf.dtype
     at = (start + jnp.arange(size) + jax.random.uniform(key, (), dtype)) / jnp.asarray(num, dtype) * cdf[-1]
