@@ -160,6 +160,48 @@ def test_slots_not_in_use_change_nothing(world, jit, ess_threshold, seed, num):
     assert bool(ref_info.resampled) == (ess_threshold > 1)
 
 
+def _two_clusters(state, mass_near):
+    """``state`` holding two clusters, 256 particles in use: 200 spread over several bins
+    around (1, 1, 0.3) with weight ``mass_near`` in all, 56 in one bin 5 m away with the
+    rest, NaN in the slots not in use; no odometry travelled since the last measurement
+    (the step measures nothing)."""
+    rng = np.random.default_rng(0)
+    near = np.c_[rng.normal(1.0, 0.3, (200, 2)), rng.normal(0.3, 0.05, 200)]
+    far = np.c_[rng.normal([-4.0, 2.0], 0.02, (56, 2)), rng.normal(1.0, 0.01, 56)]
+    poses = np.full((state.poses.shape[0], 3), np.nan)  # slots not in use: never read
+    poses[:256] = np.concatenate([near, far])
+    weights = np.full(poses.shape[0], -np.inf)
+    weights[:200] = np.log(mass_near / 200)
+    weights[200:256] = np.log((1 - mass_near) / 56)
+    return state._replace(poses=jnp.asarray(poses, jnp.float32), log_weights=jnp.asarray(weights, jnp.float32),
+                          num_active=jnp.asarray(256, jnp.int32), travel=jnp.zeros(2, jnp.float32))
+
+
+@pytest.mark.parametrize("jit", [True, False], ids=["jit", "no-jit"])
+def test_the_estimate_keeps_its_cluster_until_another_is_clearly_heavier(world, jit):
+    """The far cluster's one bin outweighs every bin of the spread one: the mode lies
+    there. The estimate that followed the spread cluster stays on it while the far
+    one holds less than ``estimate_switch`` (2) times its weight (0.6 against 0.4),
+    and moves when it holds more (0.9 against 0.1). Without a last estimate (a global
+    start) it is the mode, as it is for every step of a filter without the memory:
+    the test fails there."""
+    filt, params, log, scan = _filter(world)
+    step = jax.jit(filt.step) if jit else filt.step
+    state = filt.init(jax.random.key(0), jnp.asarray([1.0, 1.0, 0.3], jnp.float32), jnp.asarray([0.1, 0.1, 0.05]))
+    zero = jnp.zeros(3, jnp.float32)
+    kept, kept_info = step(jax.random.key(1), _two_clusters(state, 0.4), zero, scan)
+    moved, moved_info = step(jax.random.key(1), _two_clusters(state, 0.1), zero, scan)
+    fresh = _two_clusters(state, 0.4)._replace(estimate=jnp.full(3, jnp.nan, jnp.float32))
+    mode, mode_info = step(jax.random.key(1), fresh, zero, scan)
+    assert not bool(kept_info.updated) and float(params.estimate_switch) == 2.0
+    np.testing.assert_allclose(np.asarray(kept_info.estimate)[:2], [1.0, 1.0], atol=0.15)
+    assert 0.1 < float(kept_info.cluster_weight) < 0.4
+    np.testing.assert_array_equal(np.asarray(kept.estimate), np.asarray(kept_info.estimate))
+    for info in (moved_info, mode_info):
+        np.testing.assert_allclose(np.asarray(info.estimate), [-4.0, 2.0, 1.0], atol=0.05)
+    assert float(mode_info.cluster_weight) == pytest.approx(0.6, abs=1e-3)
+
+
 def test_a_spread_cloud_with_few_in_use_draws_more_than_it_had(world):
     capacity = 4096
     filt, params, log, scan = _filter(world, capacity=capacity, block=128, ess_threshold=1.1, likelihood_power=1e-6)
