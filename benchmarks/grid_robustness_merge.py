@@ -54,9 +54,20 @@ def parse_source(spec: str) -> tuple[Path, dict[str, str] | None]:
     return Path(path), picked
 
 
+def run_cpu(machine: dict | None) -> str | None:
+    """The CPU a part's runs were made on, ``"AMD EPYC 26/2"`` (name, family/model):
+    XLA compiles code for the CPU it runs on, and another CPU draws other runs from the
+    same seeds, so a merged file records it per run."""
+    if not machine or "cpu" not in machine:
+        return None
+    return f"{machine['cpu']} {machine.get('cpu_family_model', '?')}"
+
+
 def merge(sources: list[str | Path]) -> tuple[list[dict], list[str]]:
     """Runs of ``sources`` in order (see :func:`parse_source`), later ``(log, filter,
-    seed)`` replacing earlier ones; also the list of replaced runs (for the record)."""
+    seed)`` replacing earlier ones; also the list of replaced runs (for the record).
+    Each run keeps its ``source`` file and, where that file names its machine, its
+    ``cpu`` (:func:`run_cpu`)."""
     by_key: dict[tuple, dict] = {}
     replaced: list[str] = []
     for spec in sources:
@@ -66,7 +77,10 @@ def merge(sources: list[str | Path]) -> tuple[list[dict], list[str]]:
             runs = payload["runs"]
         except (OSError, ValueError, KeyError) as error:
             raise SystemExit(f"{path}: not a grid_robustness result ({error})") from error
+        cpu = run_cpu(payload.get("machine"))
         for run in runs:
+            if cpu is not None and "cpu" not in run:  # a run keeps the CPU of the file it was made in
+                run = {**run, "cpu": cpu}
             if only is not None:
                 if run["filter"] not in only:
                     continue

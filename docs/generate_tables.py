@@ -11,6 +11,7 @@ Every function reads one or two result files and fails loudly (``KeyError``,
 
 from __future__ import annotations
 
+import collections
 import json
 import statistics
 from pathlib import Path
@@ -58,8 +59,15 @@ def _mean_worst(cell: dict | None, seeds: bool = True) -> str:
 
 
 def machine_line(data: dict) -> str:
-    """One sentence on the machine a result file was measured on."""
+    """One sentence on the machine a result file was measured on; a merged file whose
+    runs name more than one CPU (``cpu``, ``grid_robustness_merge.run_cpu``) names each,
+    with its count of runs."""
     m = data["machine"]
+    cpus = collections.Counter(r["cpu"] for r in data.get("runs", []) if "cpu" in r)
+    if len(cpus) > 1:
+        parts = [f"{cpu.rsplit(' ', 1)[0]} (family/model {cpu.rsplit(' ', 1)[1]}, {n} run{'s' * (n != 1)})"
+                 for cpu, n in sorted(cpus.items(), key=lambda item: -item[1])]
+        return f"Measured on {m['cores']}-core machines: " + " and ".join(parts) + f"; jax {m['jax']}."
     return f"Measured on a {m['cores']}-core {m['cpu']} (family/model {m.get('cpu_family_model', '?')}), jax {m['jax']}."
 
 

@@ -79,6 +79,19 @@ def test_the_headline_table_is_the_generated_one():
     assert generate_tables.headline_table() in README
 
 
+def test_a_table_of_runs_from_two_cpus_names_both():
+    sys.path.insert(0, str(ROOT / "docs"))
+    import generate_tables
+
+    machine = {"cores": 2, "cpu": "AMD EPYC", "cpu_family_model": "26/2", "jax": "0.10.2"}
+    runs = [{"cpu": "AMD EPYC 26/2"}] * 3 + [{"cpu": "Intel(R) Xeon(R) Processor 6/207"}]
+    assert generate_tables.machine_line({"machine": machine, "runs": runs}) == (
+        "Measured on 2-core machines: AMD EPYC (family/model 26/2, 3 runs) and "
+        "Intel(R) Xeon(R) Processor (family/model 6/207, 1 run); jax 0.10.2.")
+    assert generate_tables.machine_line({"machine": machine, "runs": runs[:3]}) == (
+        "Measured on a 2-core AMD EPYC (family/model 26/2), jax 0.10.2.")
+
+
 def test_readme_is_short():
     assert len(README.splitlines()) <= 210
 

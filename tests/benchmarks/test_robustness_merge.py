@@ -82,3 +82,22 @@ def test_runs_under_two_code_splits_are_two_runs_and_two_columns(tmp_path):
     table = merge_module.markdown(merge_module.summarize(rows)).splitlines()
     assert table[0] == "| log | srupf-gm, code split 8 | srupf-gm, code split 32 |"
     assert table[2] == "| intel | 0.030 (0.030), 1.00 m, 0 [1] | 0.300 (0.300), 1.00 m, 0 [1] |"
+
+
+def test_a_merged_run_keeps_the_cpu_of_its_part(tmp_path):
+    """XLA compiles for the CPU it runs on, so a merge of parts made on two machines
+    records each run's CPU, and a run merged again keeps the one it had."""
+    def part(path, cpu, runs):
+        machine = {"cpu": cpu[0], "cpu_family_model": cpu[1], "cores": 2}
+        path.write_text(json.dumps({"machine": machine, "runs": [
+            {"log": "intel", "filter": "srupf-gm", "seed": s, "mean_m": 0.03} for s in runs]}))
+        return path
+
+    first = part(tmp_path / "a.json", ("AMD EPYC", "26/2"), [0, 1])
+    second = part(tmp_path / "b.json", ("Intel(R) Xeon(R) Processor", "6/207"), [1])
+    rows, _ = merge_module.merge([first, second])
+    assert {r["seed"]: r["cpu"] for r in rows} == {0: "AMD EPYC 26/2", 1: "Intel(R) Xeon(R) Processor 6/207"}
+    merged = tmp_path / "merged.json"
+    merged.write_text(json.dumps({"machine": {"cpu": "Other", "cpu_family_model": "1/1"}, "runs": rows}))
+    again, _ = merge_module.merge([merged])
+    assert {r["seed"]: r["cpu"] for r in again} == {0: "AMD EPYC 26/2", 1: "Intel(R) Xeon(R) Processor 6/207"}
