@@ -290,7 +290,7 @@ def main() -> None:
             args.logs = sorted({r["log"] for r in data["global"]}) or args.logs
             args.global_particles = sorted({r["particles"] for r in data["global"]})
             _plot(RESULTS / f"{stem}.png", data["curves"]["tracking"], data["curves"]["kidnap"],
-                  rates(data["global"], args), args)
+                  rates(data["global"], args), args, raw_scan_rates(args.logs))
         return
 
     tracking, global_rows, kidnaps, processes, amcl_rows = [], [], [], [], []
@@ -399,7 +399,7 @@ def main() -> None:
     print("\nglobal, per particle count"); print_table([{"case": k, **v} for k, v in table.items()],
                                                        ["case", "seeds", "success_rate", "converged_scan_median",
                                                         "converged_s_median", "wall_s_mean", "scans_per_s_mean"])
-    _plot(RESULTS / f"{stem}.png", curves, kidnap_curves, table, args)
+    _plot(RESULTS / f"{stem}.png", curves, kidnap_curves, table, args, raw_scan_rates(args.logs))
     print(path)
 
 
@@ -422,7 +422,21 @@ def rates(global_rows: list[dict], args) -> dict:
     return table
 
 
-def _plot(path, curves, kidnap_curves, table, args):
+def raw_scan_rates(logs) -> dict[str, float]:
+    """Scans per second of the raw log each localized log was corrected from (the log of
+    the same name, :func:`jaxslam.datasets.registry.load_dataset_log`; its scans over its
+    duration): the rate a filter keeps up with on the robot. The corrected logs are
+    GMapping's keyframes, whose spacing is no sensor's rate."""
+    rates = {}
+    for name in logs:
+        raw = load_dataset_log(name)
+        duration = float(raw.scan_times[-1] - raw.scan_times[0])
+        if duration > 0:
+            rates[Path(str(name)).name] = raw.num_scans / duration
+    return rates
+
+
+def _plot(path, curves, kidnap_curves, table, args, scan_rates: dict[str, float]):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -458,11 +472,14 @@ def _plot(path, curves, kidnap_curves, table, args):
         twin.plot(x, [table[k]["scans_per_s_mean"] for k in labels], "o-", color="tab:blue", label="filter loop")
         twin.plot(x, [table[k]["scans_per_s_with_compile_mean"] for k in labels], "s--", color="tab:blue",
                   label="with compilation")
-        twin.axhline(5.1, color="tab:gray", lw=0.8, ls=":")
+        for rate in scan_rates.values():
+            twin.axhline(rate, color="tab:gray", lw=0.8, ls=":")
         twin.set_yscale("log")
         twin.set_ylabel("scans per second", color="tab:blue")
         twin.legend(fontsize=7, loc="upper right")
-        right.set_title("global localization (dotted: Intel's raw scan rate, 5.1/s)", fontsize=9)
+        rates_text = ", ".join(f"{log} {rate:.1f}/s" for log, rate in scan_rates.items())
+        right.set_title("global localization" + (f" (dotted: the raw log's scan rate, {rates_text})"
+                                                 if scan_rates else ""), fontsize=9)
     left.set_visible(bool(curves))
     middle.set_visible(bool(kidnap_curves))
     right.set_visible(bool(labels))

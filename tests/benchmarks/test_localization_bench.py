@@ -5,6 +5,7 @@ the errors stay in bounds."""
 import dataclasses
 
 import numpy as np
+import pytest
 
 from jaxslam.datasets.geometry import se2_between, se2_compose
 
@@ -71,3 +72,13 @@ def test_converged_scan_is_where_the_error_stays_in_bounds():
     assert loc.converged_scan(distance, heading, hold=1) == 6
     assert loc.converged_scan(np.full(3, 1.0), np.zeros(3)) is None
     assert loc.converged_scan(np.r_[np.ones(5), np.zeros(10)], np.zeros(15)) == 5  # the default: 10 scans
+
+
+def test_the_scan_rate_drawn_is_the_raw_logs(tmp_path):
+    """A log of 30 scans 0.2 s apart (5.8 s) records 30 / 5.8 scans per second, however the
+    corrected log made from it spaces its keyframes."""
+    from tests.reliability.logs import carmen_text, room_scans
+
+    path = tmp_path / "room.log"
+    path.write_text(carmen_text(*room_scans(30)))
+    assert loc.raw_scan_rates([path]) == {"room.log": pytest.approx(30 / 5.8)}
