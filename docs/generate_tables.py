@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import collections
 import json
+import re
 import statistics
 from pathlib import Path
 
@@ -263,14 +264,51 @@ def other_cpu_table() -> str:
 def tail_places_table() -> str:
     """Per seed of a log, where its relations over 1 m lie (``5k-11k``: from a scan in
     5000-5999 to one in 11000-11999) and the closures taken in the later stretch
-    (``scan:verdict/undone at``; ``R`` right, ``W`` wrong, ``?`` no relation to judge)."""
+    (``scan:verdict/undone at``; ``R`` right, ``W`` wrong, ``?`` no relation to judge),
+    the first of those places where most of the pair's relations are wrong, and the
+    decision there (``closure_diagnostics.cause``)."""
     rows = []
-    for row in load("closure_diagnostics_killian.json")["bad_places"]:
-        seed = row["run"].rsplit("_s", 1)[1]
+    for row in sorted(load("closure_diagnostics_killian.json")["bad_places"], key=lambda r: _seed(r["run"])):
         places = [f"{row[f'place_{k}']} ({row[f'closures_{k}']})" for k in (1, 2, 3) if f"place_{k}" in row]
-        rows.append([seed, f"{row['mean_m']:.3f}", str(row["over_1m"]), "; ".join(places)])
+        first = f"{row['first_place']} ({CAUSE_LABELS[row['cause']]})" if row.get("first_place") else ""
+        rows.append([str(_seed(row["run"])), f"{row['mean_m']:.3f}", str(row["over_1m"]), "; ".join(places), first])
     return _table(["seed", "mean error, m", "relations over 1 m",
-                   "largest groups: stretches, relations (closures in the later stretch)"], rows)
+                   "largest groups: stretches, relations (closures in the later stretch)",
+                   "went wrong first (cause)"], rows)
+
+
+def _seed(run: str) -> int:
+    """The seed of a saved run's name (``mit-killian_srupf-gm_s7``, ``..._s7_split32``)."""
+    return int(re.search(r"_s(\d+)(_|$)", run).group(1))
+
+
+TAIL_CAUSE_LOGS = {"MIT Killian": "closure_diagnostics_killian.json",
+                   "MIT Killian, XLA code split 32": "closure_diagnostics_killian_split32.json",
+                   "infinite corridor (high)": "closure_diagnostics_corridor.json",
+                   "Freiburg campus (high)": "closure_diagnostics_campus.json"}
+
+
+def tail_causes_table() -> str:
+    """Per log, the seeds over twice the median seed and the decision at the first place
+    each went wrong (``closure_diagnostics.tail_causes``)."""
+    causes = list(load(TAIL_CAUSE_LOGS["MIT Killian"])["tail_causes"]["counts"])
+    rows = []
+    for log, name in TAIL_CAUSE_LOGS.items():
+        data = load(name)
+        tail = data["tail_causes"]
+        seeds = sorted(_seed(Path(run).stem) for run in data["runs"])
+        worst = max(data["bad_places"], key=lambda row: row["mean_m"])
+        rows.append([log, f"{seeds[0]}-{seeds[-1]}", f"{tail['median_m']:.3f}",
+                     f"{worst['mean_m']:.3f} ({_seed(worst['run'])})", str(len(tail["runs"])),
+                     *(str(tail["counts"][key]) for key in causes)])
+    return _table(["log", "seeds", "median seed, m", "worst seed, m (seed)", "seeds over 2x median",
+                   *(CAUSE_LABELS[key] for key in causes)],
+                  rows)
+
+
+CAUSE_LABELS = {"wrong": "wrong closure kept", "undone": "right closure undone", "late": "right closure, late",
+                "unjudged": "closure no relation judges", "none": "no right closure", "local": "within one stretch"}
+"""Column names of ``closure_diagnostics.CAUSES``."""
 
 
 def _tail(cell: dict) -> str:
@@ -462,7 +500,7 @@ TABLES = {
     "feature_cost": feature_cost_table, "closure_search_cost": closure_search_cost_table,
     "compile_cost": compile_cost_table, "first_run": first_run_table, "continue_map": continue_map_table,
     "continue_localize": continue_localize_table, "other_cpu": other_cpu_table,
-    "tail_places": tail_places_table,
+    "tail_places": tail_places_table, "tail_causes": tail_causes_table,
     "path_agreement": path_agreement_table,
     "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
     "localization_global_runs": localization_global_runs_table, "localization_kidnap": localization_kidnap_table,
@@ -479,7 +517,7 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
             "first_run": "end_to_end_first_run.json", "continue_map": "continue_map.json",
             "continue_localize": "continue_map.json", "other_cpu": "robustness_other_cpu.json",
-            "tail_places": "closure_diagnostics_killian.json",
+            "tail_places": "closure_diagnostics_killian.json", "tail_causes": "closure_diagnostics_killian.json",
             "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",

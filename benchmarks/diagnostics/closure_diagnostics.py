@@ -47,7 +47,9 @@ gives each run's relations error with and without the end's judgment of a closur
 watched when the log ended (``end_judgment``;
 :func:`jaxslam.grid.undone_closures.judge_at_end`).
 A third table says where each run's relations over 1 m lie and which closures were taken
-there (``bad_places``, :func:`bad_places`).
+there (``bad_places``, :func:`bad_places`), with the decision behind the first place where
+the run went wrong (``cause``, :func:`cause`); ``tail_causes`` counts the causes over the runs in the tail
+(:func:`tail_causes`).
 """
 
 from __future__ import annotations
@@ -227,7 +229,9 @@ def bad_places(path: str, relations, closure_rows: list[dict], threshold: float 
     (``scan:verdict``, ``/undone_at``) taken in each group's later stretch. A return that
     went wrong shows as one group from the place first seen to the place of the return;
     a return without a closure there was never searched for, or the search found
-    nothing within its reach."""
+    nothing within its reach. ``first_place`` is the earliest of those groups where
+    most of the pair's relations are wrong (:data:`FIRST_SHARE`), and ``cause`` the
+    decision there (:func:`cause`)."""
     from jaxslam.metrics.relations import match_timestamps, relation_errors
 
     run = np.load(path)
@@ -237,17 +241,86 @@ def bad_places(path: str, relations, closure_rows: list[dict], threshold: float 
     second, _ = match_timestamps(relations.t2, stamps, 1e-6)
     bad = errors.matched & (errors.trans > threshold)
     groups: dict[tuple[int, int], int] = {}
-    for a, b in zip(first[bad] // window, second[bad] // window):
+    totals: dict[tuple[int, int], int] = {}
+    for a, b, wrong in zip(first[errors.matched] // window, second[errors.matched] // window, bad[errors.matched]):
         key = (int(min(a, b)), int(max(a, b)))
-        groups[key] = groups.get(key, 0) + 1
+        totals[key] = totals.get(key, 0) + 1
+        if wrong:
+            groups[key] = groups.get(key, 0) + 1
     name = Path(path).stem
-    row = {"run": name, "mean_m": float(np.nanmean(errors.trans)), f"over_{threshold:g}m": int(bad.sum())}
+
+    def there(b: int) -> list[dict]:
+        return [r for r in closure_rows if r["run"] == name and b * window <= r["scan"] < (b + 1) * window]
+
+    def label(a: int, b: int, count: int) -> str:
+        return f"{_scan_label(a * window)}-{_scan_label(b * window)}: {count}"
+
+    row = {"run": name, "mean_m": float(np.nanmean(errors.trans)), f"over_{threshold:g}m": int(bad.sum()),
+           "first_place": None, "cause": None}
     for rank, ((a, b), count) in enumerate(sorted(groups.items(), key=lambda item: -item[1])[:top]):
         taken = [f"{r['scan']}:{r['verdict']}" + (f"/{r['undone_at']}" if r["undone_at"] is not None else "")
-                 for r in closure_rows if r["run"] == name and b * window <= r["scan"] < (b + 1) * window]
-        row[f"place_{rank + 1}"] = f"{_scan_label(a * window)}-{_scan_label(b * window)}: {count}"
+                 for r in there(b)]
+        row[f"place_{rank + 1}"] = label(a, b, count)
         row[f"closures_{rank + 1}"] = " ".join(taken) or "none"
+    largest = sorted(groups.items(), key=lambda item: -item[1])[:top]
+    failed = [(b, -count, a) for (a, b), count in largest if count >= FIRST_SHARE * totals[a, b]]
+    if failed:
+        b, count, a = min(failed)
+        row["first_place"] = label(a, b, -count)
+        row["cause"] = cause(a == b, there(b))
     return row
+
+
+FIRST_SHARE = 0.5
+"""One of a run's ``top`` largest groups of wrong relations is a place where the run went
+wrong when at least this share of all the relations between its two stretches is wrong;
+the first of them (the earliest later stretch) names the run's cause, because the places
+after it inherit its error: a return closed onto a stretch that was itself put in the
+wrong place is wrong however right its own closure was."""
+
+
+CAUSES = {
+    "wrong": "a wrong closure kept",
+    "undone": "a right closure undone",
+    "late": "a right closure, but after the stretch went wrong",
+    "unjudged": "a closure no relation judges",
+    "none": "no right closure (none taken, or only wrong ones, undone)",
+    "local": "within one stretch (a jump or local drift)",
+}
+"""What :func:`cause` names a run's largest group of wrong relations by."""
+
+
+def cause(one_stretch: bool, there: list[dict]) -> str:
+    """The decision behind a group of wrong relations (a key of :data:`CAUSES`), from the
+    closures ``there`` (rows of :func:`closures`) taken in the group's later stretch:
+    a group inside one stretch is ``local``; else, in this order, a wrong closure that
+    was kept, a right closure that was undone, a right one kept (it came after some of
+    the stretch's scans had gone wrong, or fixed only part of it), a closure without a
+    relation to judge it, and otherwise no right closure at all. A lineage lost at
+    resampling shows here as one of the others: the saved run holds the chosen path only."""
+    if one_stretch:
+        return "local"
+    kept = [r["verdict"] for r in there if r["undone_at"] is None]
+    undone = [r["verdict"] for r in there if r["undone_at"] is not None]
+    if "W" in kept:
+        return "wrong"
+    if "R" in undone:
+        return "undone"
+    if "R" in kept:
+        return "late"
+    if "?" in kept + undone:
+        return "unjudged"
+    return "none"
+
+
+def tail_causes(places: list[dict], factor: float) -> dict:
+    """The count of each cause over the tail: the runs whose mean relations error exceeds
+    ``factor`` times the median run's (``grid_robustness.TAIL_FACTOR``), with the median
+    and the tail's runs."""
+    median = float(np.median([p["mean_m"] for p in places]))
+    tail = [p for p in places if p["mean_m"] > factor * median]
+    counts = {key: sum(p["cause"] == key for p in tail) for key in CAUSES}
+    return {"median_m": median, "factor": factor, "runs": [p["run"] for p in tail], "counts": counts}
 
 
 def main(argv=None) -> None:
@@ -257,6 +330,8 @@ def main(argv=None) -> None:
                     "relations file (a perturbed log's, written by grid_robustness.py into WORK/TAG/logs/)")
     ap.add_argument("--reference", default=None, help="corrected log a perturbed log was made from (name or "
                     "path): adds heading_fix_deg and taken_back")
+    ap.add_argument("--window", type=int, default=PLACE_WINDOW, help="scans per stretch of the log in the table "
+                    "of where the relations go wrong (a perturbed log of keyframes: a few hundred)")
     ap.add_argument("--name", default="closure_diagnostics")
     args = ap.parse_args(argv)
     reference = None
@@ -289,11 +364,19 @@ def main(argv=None) -> None:
     if ends:
         print_table(ends, ["run", "closures", "undone_at_end_scans", "mean_m", "max_m", "over_0.5",
                            "without_end_mean_m", "without_end_max_m", "without_end_over_0.5"])
-    places = [bad_places(p, relations, rows) for p in paths] if relations is not None else []
+    places = [bad_places(p, relations, rows, window=args.window) for p in paths] if relations is not None else []
+    causes = None
     if places:
         print_table(places, list(dict.fromkeys(key for row in places for key in row)))
-    out = write_json(args.name, {"runs": paths, "log": args.log, "reference": args.reference, "closures": rows,
-                                 "summary": summary, "end_judgment": ends, "bad_places": places})
+        from grid_robustness import TAIL_FACTOR
+
+        causes = tail_causes(places, TAIL_FACTOR)
+        print(f"tail (over {TAIL_FACTOR:g}x the median run, {causes['median_m']:.3f} m): {len(causes['runs'])} of "
+              f"{len(places)} runs; " + ", ".join(f"{key} {n}" for key, n in causes["counts"].items()))
+    out = write_json(args.name, {"runs": paths, "log": args.log, "reference": args.reference, "window": args.window,
+                                 "closures": rows,
+                                 "summary": summary, "end_judgment": ends, "bad_places": places,
+                                 "tail_causes": causes})
     name = Path(args.log).stem if args.log and Path(args.log).is_file() else (args.log or "runs")
     plot(rows, RESULTS / f"{args.name}.png", f"{name}: loop closures ({len(paths)} runs)")
     print(f"wrote {out} and {RESULTS / (args.name + '.png')}")

@@ -164,3 +164,57 @@ def test_bad_places_groups_the_wrong_relations_by_stretch_and_names_the_closures
     # scans 100-149 to 900-949: the stretches that start at scans 100 and 900
     assert place["place_1"] == "100-900: 50" and place["closures_1"] == "900:W"
     assert "place_2" not in place
+    assert place["cause"] == "wrong"
+
+
+def _taken(verdict: str, undone_at: int | None = None) -> dict:
+    return {"verdict": verdict, "undone_at": undone_at}
+
+
+@pytest.mark.parametrize("one_stretch, there, expected", [
+    (True, [_taken("W")], "local"),
+    (False, [_taken("R"), _taken("W")], "wrong"),  # a wrong closure kept decides over a right one
+    (False, [_taken("W", 950), _taken("R", 980)], "undone"),
+    (False, [_taken("R", 980), _taken("R")], "undone"),  # undone first: the later one came after
+    (False, [_taken("R")], "late"),
+    (False, [_taken("?", 930)], "unjudged"),
+    (False, [_taken("W", 930)], "none"),  # the wrong one undone, no right one taken
+    (False, [], "none"),
+])
+def test_the_cause_of_a_group_of_wrong_relations(one_stretch, there, expected):
+    assert closure_diagnostics.cause(one_stretch, there) == expected
+
+
+def test_the_tail_counts_the_causes_of_the_runs_over_twice_the_median():
+    """Five runs with a median of 0.3 m: the two over 0.6 m are the tail, and only
+    their causes are counted (the median run's wrong closure is not)."""
+    places = [{"run": f"s{k}", "mean_m": mean, "cause": cause} for k, (mean, cause) in
+              enumerate([(0.1, "late"), (0.2, "none"), (0.3, "wrong"), (0.9, "none"), (1.5, "wrong")])]
+    tail = closure_diagnostics.tail_causes(places, 2.0)
+    assert tail["median_m"] == pytest.approx(0.3) and tail["runs"] == ["s3", "s4"]
+    assert tail["counts"] == {"wrong": 1, "undone": 0, "late": 0, "unjudged": 0, "none": 1, "local": 0}
+
+
+def test_the_first_place_where_most_relations_went_wrong_names_the_cause(tmp_path):
+    """A path along x, 0.1 m per scan, 3 m off on scans 500-549 and 900-979 and on five
+    scans of 300-319. Relations to 900-979 (80, all wrong) are the largest group, but the
+    run went wrong first at 100-500 (50, all wrong), where a right closure was taken (so:
+    late); 200-300 is earlier still, but only 5 of its 20 relations are wrong."""
+    n = 1000
+    truth = np.stack([0.1 * np.arange(n), np.zeros(n), np.zeros(n)], -1)
+    path = truth.copy()
+    path[500:550, 1] += 3.0
+    path[900:980, 1] += 3.0
+    path[300:305, 1] += 3.0
+    run = tmp_path / "run.npz"
+    np.savez(run, trajectory=path, scan_times=np.arange(n, dtype=float))
+    pairs = ([(100 + k, 500 + k) for k in range(50)] + [(100 + k, 900 + k) for k in range(80)]
+             + [(200 + k, 300 + k) for k in range(20)])
+    deltas = [truth[b] - truth[a] for a, b in pairs]
+    relations = Relations(None, np.array([float(a) for a, _ in pairs]), np.array([float(b) for _, b in pairs]),
+                          np.array(deltas), np.arange(len(pairs)))
+    taken = [{"run": "run", "scan": 520, "verdict": "R", "undone_at": None},
+             {"run": "run", "scan": 310, "verdict": "W", "undone_at": None}]
+    place = closure_diagnostics.bad_places(str(run), relations, taken, window=100, top=3)
+    assert [place[f"place_{k}"] for k in (1, 2, 3)] == ["100-900: 80", "100-500: 50", "200-300: 5"]
+    assert place["first_place"] == "100-500: 50" and place["cause"] == "late"
