@@ -267,10 +267,12 @@ def tail_places_table() -> str:
     (``scan:verdict/undone at``; ``R`` right, ``W`` wrong, ``?`` no relation to judge),
     the first of those places where most of the pair's relations are wrong, and the
     decision there (``closure_diagnostics.cause``)."""
+    data = load("closure_diagnostics_killian.json")
+    labels = data["tail_causes"]["labels"]
     rows = []
-    for row in sorted(load("closure_diagnostics_killian.json")["bad_places"], key=lambda r: _seed(r["run"])):
+    for row in sorted(data["bad_places"], key=lambda r: _seed(r["run"])):
         places = [f"{row[f'place_{k}']} ({row[f'closures_{k}']})" for k in (1, 2, 3) if f"place_{k}" in row]
-        first = f"{row['first_place']} ({CAUSE_LABELS[row['cause']]})" if row.get("first_place") else ""
+        first = f"{row['first_place']} ({labels[row['cause']]})" if row.get("first_place") else ""
         rows.append([str(_seed(row["run"])), f"{row['mean_m']:.3f}", str(row["over_1m"]), "; ".join(places), first])
     return _table(["seed", "mean error, m", "relations over 1 m",
                    "largest groups: stretches, relations (closures in the later stretch)",
@@ -291,7 +293,7 @@ TAIL_CAUSE_LOGS = {"MIT Killian": "closure_diagnostics_killian.json",
 def tail_causes_table() -> str:
     """Per log, the seeds over twice the median seed and the decision at the first place
     each went wrong (``closure_diagnostics.tail_causes``)."""
-    causes = list(load(TAIL_CAUSE_LOGS["MIT Killian"])["tail_causes"]["counts"])
+    labels = load(TAIL_CAUSE_LOGS["MIT Killian"])["tail_causes"]["labels"]
     rows = []
     for log, name in TAIL_CAUSE_LOGS.items():
         data = load(name)
@@ -300,15 +302,9 @@ def tail_causes_table() -> str:
         worst = max(data["bad_places"], key=lambda row: row["mean_m"])
         rows.append([log, f"{seeds[0]}-{seeds[-1]}", f"{tail['median_m']:.3f}",
                      f"{worst['mean_m']:.3f} ({_seed(worst['run'])})", str(len(tail["runs"])),
-                     *(str(tail["counts"][key]) for key in causes)])
+                     *(str(tail["counts"][key]) for key in labels)])
     return _table(["log", "seeds", "median seed, m", "worst seed, m (seed)", "seeds over 2x median",
-                   *(CAUSE_LABELS[key] for key in causes)],
-                  rows)
-
-
-CAUSE_LABELS = {"wrong": "wrong closure kept", "undone": "right closure undone", "late": "right closure, late",
-                "unjudged": "closure no relation judges", "none": "no right closure", "local": "within one stretch"}
-"""Column names of ``closure_diagnostics.CAUSES``."""
+                   *labels.values()], rows)
 
 
 def _tail(cell: dict) -> str:

@@ -48,8 +48,8 @@ watched when the log ended (``end_judgment``;
 :func:`jaxslam.grid.undone_closures.judge_at_end`).
 A third table says where each run's relations over 1 m lie and which closures were taken
 there (``bad_places``, :func:`bad_places`), with the decision behind the first place where
-the run went wrong (``cause``, :func:`cause`); ``tail_causes`` counts the causes over the runs in the tail
-(:func:`tail_causes`).
+the run went wrong (``cause``, :func:`cause`); ``tail_causes`` counts the causes over the
+runs in the tail (:func:`tail_causes`).
 """
 
 from __future__ import annotations
@@ -257,12 +257,12 @@ def bad_places(path: str, relations, closure_rows: list[dict], threshold: float 
 
     row = {"run": name, "mean_m": float(np.nanmean(errors.trans)), f"over_{threshold:g}m": int(bad.sum()),
            "first_place": None, "cause": None}
-    for rank, ((a, b), count) in enumerate(sorted(groups.items(), key=lambda item: -item[1])[:top]):
+    largest = sorted(groups.items(), key=lambda item: -item[1])[:top]
+    for rank, ((a, b), count) in enumerate(largest):
         taken = [f"{r['scan']}:{r['verdict']}" + (f"/{r['undone_at']}" if r["undone_at"] is not None else "")
                  for r in there(b)]
         row[f"place_{rank + 1}"] = label(a, b, count)
         row[f"closures_{rank + 1}"] = " ".join(taken) or "none"
-    largest = sorted(groups.items(), key=lambda item: -item[1])[:top]
     failed = [(b, -count, a) for (a, b), count in largest if count >= FIRST_SHARE * totals[a, b]]
     if failed:
         b, count, a = min(failed)
@@ -280,14 +280,15 @@ wrong place is wrong however right its own closure was."""
 
 
 CAUSES = {
-    "wrong": "a wrong closure kept",
-    "undone": "a right closure undone",
-    "late": "a right closure, but after the stretch went wrong",
-    "unjudged": "a closure no relation judges",
-    "none": "no right closure (none taken, or only wrong ones, undone)",
-    "local": "within one stretch (a jump or local drift)",
+    "wrong": "wrong closure kept",
+    "undone": "right closure undone",
+    "late": "right closure, late",
+    "unjudged": "closure no relation judges",
+    "none": "no right closure",
+    "local": "within one stretch",
 }
-"""What :func:`cause` names a run's largest group of wrong relations by."""
+"""The decisions :func:`cause` names the first place a run went wrong by, with their
+labels (``tail_causes`` carries them into the JSON, where the docs' tables read them)."""
 
 
 def cause(one_stretch: bool, there: list[dict]) -> str:
@@ -320,7 +321,8 @@ def tail_causes(places: list[dict], factor: float) -> dict:
     median = float(np.median([p["mean_m"] for p in places]))
     tail = [p for p in places if p["mean_m"] > factor * median]
     counts = {key: sum(p["cause"] == key for p in tail) for key in CAUSES}
-    return {"median_m": median, "factor": factor, "runs": [p["run"] for p in tail], "counts": counts}
+    return {"median_m": median, "factor": factor, "runs": [p["run"] for p in tail], "counts": counts,
+            "labels": CAUSES}
 
 
 def main(argv=None) -> None:
