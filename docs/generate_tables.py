@@ -284,27 +284,83 @@ def _seed(run: str) -> int:
     return int(re.search(r"_s(\d+)(_|$)", run).group(1))
 
 
-TAIL_CAUSE_LOGS = {"MIT Killian": "closure_diagnostics_killian.json",
-                   "MIT Killian, XLA code split 32": "closure_diagnostics_killian_split32.json",
-                   "infinite corridor (high)": "closure_diagnostics_corridor.json",
-                   "Freiburg campus (high)": "closure_diagnostics_campus.json"}
+TAIL_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian.json"),
+                   ("MIT Killian, XLA code split 32", "closure_diagnostics_killian_split32.json"),
+                   ("MIT Killian", "closure_diagnostics_killian_amd.json"),
+                   ("infinite corridor (high)", "closure_diagnostics_corridor.json"),
+                   ("Freiburg campus (high)", "closure_diagnostics_campus.json"),
+                   ("Orebro (high)", "closure_diagnostics_orebro.json"),
+                   ("CSAIL (high)", "closure_diagnostics_csail.json"),
+                   ("Intel (high)", "closure_diagnostics_intel.json"),
+                   ("Seattle (high)", "closure_diagnostics_seattle.json"),
+                   ("FR101 (high)", "closure_diagnostics_fr101.json"),
+                   ("Edmonton (high)", "closure_diagnostics_edmonton.json")]
+"""The rows of the causes table: (log, diagnostics JSON), each made on the CPU that ran its runs."""
+
+
+def _cpu(data: dict) -> str:
+    """The CPU a diagnostics file names, ``AMD EPYC 25/1``."""
+    cpu = data["machine"]["cpu"].replace("(R)", "").replace(" Processor", "")
+    return f"{cpu} {data['machine'].get('cpu_family_model', '?')}"
 
 
 def tail_causes_table() -> str:
-    """Per log, the seeds over twice the median seed and the decision at the first place
-    each went wrong (``closure_diagnostics.tail_causes``)."""
-    labels = load(TAIL_CAUSE_LOGS["MIT Killian"])["tail_causes"]["labels"]
+    """Per log and CPU, the seeds over twice the median seed and the decision at the
+    first place each went wrong (``closure_diagnostics.tail_causes``)."""
+    labels = load(TAIL_CAUSE_LOGS[0][1])["tail_causes"]["labels"]
     rows = []
-    for log, name in TAIL_CAUSE_LOGS.items():
+    for log, name in TAIL_CAUSE_LOGS:
         data = load(name)
         tail = data["tail_causes"]
         seeds = sorted(_seed(Path(run).stem) for run in data["runs"])
         worst = max(data["bad_places"], key=lambda row: row["mean_m"])
-        rows.append([log, f"{seeds[0]}-{seeds[-1]}", f"{tail['median_m']:.3f}",
+        rows.append([log, _cpu(data), f"{seeds[0]}-{seeds[-1]}", f"{tail['median_m']:.3f}",
                      f"{worst['mean_m']:.3f} ({_seed(worst['run'])})", str(len(tail["runs"])),
                      *(str(tail["counts"][key]) for key in labels)])
-    return _table(["log", "seeds", "median seed, m", "worst seed, m (seed)", "seeds over 2x median",
+    return _table(["log", "CPU", "seeds", "median seed, m", "worst seed, m (seed)", "seeds over 2x median",
                    *labels.values()], rows)
+
+
+def tail_causes_machines() -> dict:
+    """The machine line's input for the causes table: every run with the CPU of its row."""
+    files = [load(name) for _, name in TAIL_CAUSE_LOGS]
+    return {"machine": files[0]["machine"], "runs": [{"cpu": _cpu(data)} for data in files for _ in data["runs"]]}
+
+
+def first_closures(closures: list[dict], rate: float, floor: float) -> list[dict]:
+    """Each run's first closure (a closure diagnostics file's ``closures``) with its
+    jump over the tracking's own drift since the start, ``jump_m / max(floor, rate *
+    travelled_m)`` (``drift_ratio``): ``closure.reach_rate`` and ``closure.jump``, the
+    bound the map bound (``closure_map_bound``) puts on a first closure."""
+    first: dict[str, dict] = {}
+    for closure in sorted(closures, key=lambda c: c["scan"]):
+        first.setdefault(closure["run"], closure)
+    return [{**c, "drift_ratio": c["jump_m"] / max(floor, rate * c["travelled_m"])} for c in first.values()]
+
+
+def first_closure_table() -> str:
+    """Per row of the causes table, the runs' first closures by verdict: how many, the
+    largest jump over the tracking's drift since the start (``drift_ratio``), and the
+    runs and scans where it exceeds 1."""
+    from jaxslam.grid.types import ClosureParams
+
+    rate, floor = float(ClosureParams().reach_rate), float(ClosureParams().jump)
+    verdicts = {"R": "right", "W": "wrong", "?": "no relation judges"}
+    rows = []
+    for log, name in TAIL_CAUSE_LOGS:
+        data = load(name)
+        first = first_closures(data["closures"], rate, floor)
+        cells = []
+        for key in verdicts:
+            group = [c for c in first if c["verdict"] == key]
+            over = [f"seed {_seed(c['run'])}, scan {c['scan']}" for c in group if c["drift_ratio"] > 1]
+            if not group:
+                cells.append("0")
+                continue
+            cells.append(f"{len(group)}, {max(c['drift_ratio'] for c in group):.2f}"
+                         + (f" ({'; '.join(over)})" if over else ""))
+        rows.append([log, _cpu(data), str(len(data["runs"])), *cells])
+    return _table(["log", "CPU", "runs", *verdicts.values()], rows)
 
 
 def _tail(cell: dict) -> str:
@@ -497,6 +553,7 @@ TABLES = {
     "compile_cost": compile_cost_table, "first_run": first_run_table, "continue_map": continue_map_table,
     "continue_localize": continue_localize_table, "other_cpu": other_cpu_table,
     "tail_places": tail_places_table, "tail_causes": tail_causes_table,
+    "first_closures": first_closure_table,
     "path_agreement": path_agreement_table,
     "localization_tracking": localization_tracking_table, "localization_global": localization_global_table,
     "localization_global_runs": localization_global_runs_table, "localization_kidnap": localization_kidnap_table,
@@ -513,7 +570,8 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "closure_search_cost": "closure_search_cost.json", "compile_cost": "compile_cost.json",
             "first_run": "end_to_end_first_run.json", "continue_map": "continue_map.json",
             "continue_localize": "continue_map.json", "other_cpu": "robustness_other_cpu.json",
-            "tail_places": "closure_diagnostics_killian.json", "tail_causes": "closure_diagnostics_killian.json",
+            "tail_places": "closure_diagnostics_killian.json", "tail_causes": tail_causes_machines,
+            "first_closures": tail_causes_machines,
             "path_agreement": "path_agreement_csail.json", "localization_tracking": "localization.json",
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",
@@ -527,7 +585,9 @@ def write_all(folder: Path = GENERATED) -> list[Path]:
     written = []
     for name, make in TABLES.items():
         path = folder / f"{name}.md"
-        text = make() + "\n" + machine_line(load(MACHINES[name])) + "\n"
+        source = MACHINES[name]
+        data = source() if callable(source) else load(source)
+        text = make() + "\n" + machine_line(data) + "\n"
         if not path.exists() or path.read_text() != text:
             path.write_text(text)
         written.append(path)

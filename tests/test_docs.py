@@ -92,6 +92,20 @@ def test_a_table_of_runs_from_two_cpus_names_both():
         "Measured on a 2-core AMD EPYC (family/model 26/2), jax 0.10.2.")
 
 
+def test_a_runs_first_closure_is_measured_against_the_drift_since_the_start():
+    """The earliest closure of each run, whatever the order of the list; its jump over
+    ``rate`` x the path since the start, and over the floor where that is shorter."""
+    sys.path.insert(0, str(ROOT / "docs"))
+    import generate_tables
+
+    closures = [{"run": "a_s1", "scan": 900, "jump_m": 9.0, "travelled_m": 40.0, "verdict": "R"},
+                {"run": "a_s1", "scan": 300, "jump_m": 3.0, "travelled_m": 100.0, "verdict": "W"},
+                {"run": "a_s2", "scan": 50, "jump_m": 0.25, "travelled_m": 5.0, "verdict": "?"}]
+    first = {c["run"]: c for c in generate_tables.first_closures(closures, 0.02, 0.5)}
+    assert first["a_s1"]["scan"] == 300 and first["a_s1"]["drift_ratio"] == pytest.approx(1.5)
+    assert first["a_s2"]["drift_ratio"] == pytest.approx(0.5)  # 0.25 m over the 0.5 m floor
+
+
 def test_readme_is_short():
     assert len(README.splitlines()) <= 210
 
