@@ -160,7 +160,7 @@ from jaxslam.grid.types import Odometry, Scan  # noqa: E402
 from jaxslam.metrics.trajectory_io import se2_between  # noqa: E402
 
 
-@pytest.mark.parametrize("algorithm", ["rb-upf", "erb-upf"])
+@pytest.mark.parametrize("algorithm", ["rb-upf", pytest.param("erb-upf", marks=pytest.mark.long)])
 def test_landmark_filter_value_runs_as_the_cli(landmark_sequence, algorithm):
     """``jaxslam.run(jaxslam.erb_upf(...))`` (and RB) gives the ``Info`` of every step
     that ``run_landmark_slam``'s chunked runner gives, and its final state."""

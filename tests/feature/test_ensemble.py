@@ -49,6 +49,7 @@ def test_params_sweep_does_not_recompile():
     np.testing.assert_array_equal(second.trajectory[1], single.trajectory)
 
 
+@pytest.mark.long
 def test_recorded_poses_are_the_particles_and_change_nothing_else():
     seq = simulate(seed=3, **SIM)
     seeds = (0, 5, 11)  # the shapes of the tests above: the plain run's program is compiled already

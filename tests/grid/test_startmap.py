@@ -154,6 +154,7 @@ def test_a_simulated_map_continued_on_its_log_stays_on_the_saved_path(tmp_path):
     assert np.mean(again.map_log_odds[rows + dy, cols + dx] > 0) > 0.95
 
 
+@pytest.mark.long
 def test_a_continued_run_matches_its_first_scan_in_the_saved_map(tmp_path):
     """Started 12 cm and 2.3 degrees off the pose the saved map was made at, the first
     scan is matched into the saved map's walls before it is written, so the continued

@@ -135,7 +135,7 @@ def _in_use(state, num, filler):
                           num_active=jnp.asarray(num, jnp.int32))
 
 
-@pytest.mark.parametrize("jit", [True, False], ids=["jit", "no-jit"])
+@pytest.mark.parametrize("jit", [True, pytest.param(False, marks=pytest.mark.long)], ids=["jit", "no-jit"])
 @pytest.mark.parametrize("ess_threshold", [0.0, 1.1], ids=["no-resampling", "resampling"])
 @settings(max_examples=3, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), num=st.integers(100, 500))
