@@ -97,8 +97,16 @@ def merge(sources: list[str | Path]) -> tuple[list[dict], list[str]]:
     return rows, replaced
 
 
+def series(rows: list[dict]) -> list[tuple[str, int | None]]:
+    """The plot's series: each ``(filter, code_split)`` the runs hold (a variant,
+    ``srupf-gm[NAME]``, is a filter of its own), in the order of :data:`FILTERS`."""
+    order = {f: i for i, f in enumerate(FILTERS)}
+    return sorted({(r["filter"], r.get("code_split")) for r in rows},
+                  key=lambda k: (order.get(k[0].split("[")[0], 99), k[0], k[1] or 0))
+
+
 def plot(rows: list[dict], path: Path) -> None:
-    """Relations error (mean over relations) of each seed, per log and filter."""
+    """Relations error (mean over relations) of each seed, per log, filter and code split."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -106,16 +114,18 @@ def plot(rows: list[dict], path: Path) -> None:
 
     scored = [r for r in rows if r.get("mean_m") is not None and "error" not in r]
     logs = sorted({r["log"] for r in scored})
-    filters = [f for f in FILTERS if any(r["filter"] == f for r in scored)]
+    filters = series(scored)
     fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(logs) + 2), 4.2))
     markers = {"srupf-gm": "o", "gmapping": "s", "gmapping-cpp": "^"}
     width = 0.8 / max(1, len(filters))
-    for j, name in enumerate(filters):
+    for j, (name, split) in enumerate(filters):
+        label = name if split is None else f"{name}, code split {split}"
         for i, log in enumerate(logs):
-            values = [r["mean_m"] for r in scored if r["log"] == log and r["filter"] == name]
+            values = [r["mean_m"] for r in scored
+                      if r["log"] == log and r["filter"] == name and r.get("code_split") == split]
             x = [i - 0.4 + width * (j + 0.5)] * len(values)
-            ax.scatter(x, values, marker=markers.get(name, "x"), color=f"C{j}", s=22,
-                       label=name if i == 0 else None, alpha=0.8)
+            ax.scatter(x, values, marker=markers.get(name.split("[")[0], "x"), color=f"C{j}", s=22,
+                       label=label if i == 0 else None, alpha=0.8)
     ax.set_yscale("log")
     ax.set_xticks(range(len(logs)))
     ax.set_xticklabels(logs, rotation=30, ha="right")

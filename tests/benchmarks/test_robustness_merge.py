@@ -101,3 +101,13 @@ def test_a_merged_run_keeps_the_cpu_of_its_part(tmp_path):
     merged.write_text(json.dumps({"machine": {"cpu": "Other", "cpu_family_model": "1/1"}, "runs": rows}))
     again, _ = merge_module.merge([merged])
     assert {r["seed"]: r["cpu"] for r in again} == {0: "AMD EPYC 26/2", 1: "Intel(R) Xeon(R) Processor 6/207"}
+
+
+def test_every_variant_and_code_split_is_a_series_of_the_plot():
+    """The plot took only the filters' plain names, so a variant's runs
+    (``srupf-gm[first]``) and a second code split's fell out of it."""
+    rows = [{"log": "intel", "filter": name, "seed": 0, "mean_m": 0.1, **({"code_split": split} if split else {})}
+            for name, split in [("srupf-gm[off]", None), ("gmapping-cpp", None), ("srupf-gm[first]", 32),
+                                ("srupf-gm[first]", None), ("srupf-gm", None)]]
+    assert merge_module.series(rows) == [("srupf-gm", None), ("srupf-gm[first]", None), ("srupf-gm[first]", 32),
+                                         ("srupf-gm[off]", None), ("gmapping-cpp", None)]
