@@ -296,6 +296,8 @@ TAIL_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian.json"),
                    ("FR101 (high)", "closure_diagnostics_fr101.json"),
                    ("Edmonton (high)", "closure_diagnostics_edmonton.json")]
 """The rows of the causes table: (log, diagnostics JSON), each made on the CPU that ran its runs."""
+BOUNDED_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian_first.json")]
+"""The causes table's rows with the first closure bounded (``closure.first_drift`` 0.02)."""
 
 
 def _cpu(data: dict) -> str:
@@ -304,12 +306,13 @@ def _cpu(data: dict) -> str:
     return f"{cpu} {data['machine'].get('cpu_family_model', '?')}"
 
 
-def tail_causes_table() -> str:
-    """Per log and CPU, the seeds over twice the median seed and the decision at the
-    first place each went wrong (``closure_diagnostics.tail_causes``)."""
-    labels = load(TAIL_CAUSE_LOGS[0][1])["tail_causes"]["labels"]
+def tail_causes_table(logs: list[tuple[str, str]] = TAIL_CAUSE_LOGS) -> str:
+    """Per log and CPU (``logs``: rows as :data:`TAIL_CAUSE_LOGS`), the seeds over
+    twice the median seed and the decision at the first place each went wrong
+    (``closure_diagnostics.tail_causes``)."""
+    labels = load(logs[0][1])["tail_causes"]["labels"]
     rows = []
-    for log, name in TAIL_CAUSE_LOGS:
+    for log, name in logs:
         data = load(name)
         tail = data["tail_causes"]
         seeds = sorted(_seed(Path(run).stem) for run in data["runs"])
@@ -321,9 +324,9 @@ def tail_causes_table() -> str:
                    *labels.values()], rows)
 
 
-def tail_causes_machines() -> dict:
+def tail_causes_machines(logs: list[tuple[str, str]] = TAIL_CAUSE_LOGS) -> dict:
     """The machine line's input for the causes table: every run with the CPU of its row."""
-    files = [load(name) for _, name in TAIL_CAUSE_LOGS]
+    files = [load(name) for _, name in logs]
     return {"machine": files[0]["machine"], "runs": [{"cpu": _cpu(data)} for data in files for _ in data["runs"]]}
 
 
@@ -331,7 +334,7 @@ def first_closures(closures: list[dict], rate: float, floor: float) -> list[dict
     """Each run's first closure (a closure diagnostics file's ``closures``) with its
     jump over the tracking's own drift since the start, ``jump_m / max(floor, rate *
     travelled_m)`` (``drift_ratio``): ``closure.reach_rate`` and ``closure.jump``, the
-    bound the map bound (``closure_map_bound``) puts on a first closure."""
+    bound ``closure.first_drift`` puts on a first closure at its default."""
     first: dict[str, dict] = {}
     for closure in sorted(closures, key=lambda c: c["scan"]):
         first.setdefault(closure["run"], closure)
@@ -361,6 +364,54 @@ def first_closure_table() -> str:
                          + (f" ({'; '.join(over)})" if over else ""))
         rows.append([log, _cpu(data), str(len(data["runs"])), *cells])
     return _table(["log", "CPU", "runs", *verdicts.values()], rows)
+
+
+def paired_arms(runs: list[dict], without: str, with_: str) -> list[dict]:
+    """Per log and code split, two variants of one filter run on the same seeds
+    (``filter`` ``srupf-gm[without]`` and ``srupf-gm[with_]``): each arm's median
+    seed, worst seed (and its seed), count of seeds over twice the median seed and
+    worst relation, and the seeds whose mean differs between the arms, as
+    ``(seed, without's mean, with_'s mean)``. Seeds run in one arm only are left out."""
+    arms: dict[tuple, dict[str, dict[int, dict]]] = collections.defaultdict(lambda: {without: {}, with_: {}})
+    for run in runs:
+        variant = run["filter"].partition("[")[2].rstrip("]")
+        if variant in (without, with_) and "mean_m" in run:
+            arms[(run["log"], run.get("code_split"))][variant][run["seed"]] = run
+    rows = []
+    for (log, split), arm in sorted(arms.items(), key=lambda item: (item[0][0], item[0][1] or 0)):
+        seeds = sorted(set(arm[without]) & set(arm[with_]))
+        row = {"log": log, "code_split": split, "seeds": len(seeds)}
+        for variant in (without, with_):
+            means = {seed: arm[variant][seed]["mean_m"] for seed in seeds}
+            median = statistics.median(means.values())
+            worst = max(seeds, key=lambda seed: means[seed])
+            row[variant] = {"median_m": median, "worst_m": means[worst], "worst_seed": worst,
+                            "over_2x": sum(m > 2 * median for m in means.values()),
+                            "worst_max_m": max(arm[variant][seed]["max_m"] for seed in seeds)}
+        row["changed"] = [(seed, arm[without][seed]["mean_m"], arm[with_][seed]["mean_m"]) for seed in seeds
+                          if arm[without][seed]["mean_m"] != arm[with_][seed]["mean_m"]]
+        rows.append(row)
+    return rows
+
+
+def first_drift_table() -> str:
+    """``srupf-gm`` with ``closure.first_drift`` off and at 0.02, the same seeds and
+    program (``robustness_first_drift.json``), per log and XLA code split."""
+    from jaxslam.runtime.compiler import OPTIONS
+
+    fixed = str(OPTIONS["xla_cpu_parallel_codegen_split_count"])
+    rows = []
+    for row in paired_arms(load("robustness_first_drift.json")["runs"], "off", "first"):
+        cells = []
+        for variant in ("off", "first"):
+            arm = row[variant]
+            cells.append(f"{arm['median_m']:.3f}, {arm['worst_m']:.3f} (seed {arm['worst_seed']}), "
+                         f"{arm['over_2x']}, {arm['worst_max_m']:.2f} m")
+        changed = "; ".join(f"{seed}: {a:.3f} to {b:.3f}" for seed, a, b in row["changed"]) or "none"
+        rows.append([LOG_NAMES.get(row["log"], row["log"]), str(row["code_split"] or fixed), str(row["seeds"]), *cells,
+                     changed])
+    return _table(["log", "code split", "seeds", "off: median, worst seed, over 2x median, worst relation",
+                   "0.02: the same", "seeds that changed (mean, m)"], rows)
 
 
 def _tail(cell: dict) -> str:
@@ -564,6 +615,8 @@ TABLES = {
                                          "with the recovery and wider proposals", "without"),
     "map_bound": lambda: comparison_table("robustness_map_bound.json", "robustness_no_map_bound.json",
                                           "with the map bound", "without", tail=True),
+    "first_drift": first_drift_table,
+    "tail_causes_bounded": lambda: tail_causes_table(BOUNDED_CAUSE_LOGS),
 }
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
@@ -576,7 +629,9 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "localization_global": "localization.json", "localization_global_runs": "localization.json",
             "localization_kidnap": "localization.json", "localization_amcl": "localization_amcl.json",
             "coarse_stage": "robustness_coarse_stage.json",
-            "recovery": "robustness_recovery.json", "map_bound": "robustness_map_bound.json"}
+            "recovery": "robustness_recovery.json", "map_bound": "robustness_map_bound.json",
+            "first_drift": "robustness_first_drift.json",
+            "tail_causes_bounded": lambda: tail_causes_machines(BOUNDED_CAUSE_LOGS)}
 
 
 def write_all(folder: Path = GENERATED) -> list[Path]:

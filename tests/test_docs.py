@@ -106,6 +106,28 @@ def test_a_runs_first_closure_is_measured_against_the_drift_since_the_start():
     assert first["a_s2"]["drift_ratio"] == pytest.approx(0.5)  # 0.25 m over the 0.5 m floor
 
 
+def test_paired_arms_compare_the_seeds_both_variants_ran_per_log_and_code_split():
+    """Seeds run by one arm only are left out; the worst seed and the seeds over twice
+    the median are each arm's own; code splits are separate rows; the changed seeds
+    are those whose mean differs."""
+    sys.path.insert(0, str(ROOT / "docs"))
+    import generate_tables
+
+    def run(variant, seed, mean, split=None):
+        return {"log": "loop", "filter": f"srupf-gm[{variant}]", "seed": seed, "mean_m": mean, "max_m": 10 * mean,
+                **({"code_split": split} if split else {})}
+
+    runs = [run("off", 0, 0.1), run("off", 1, 0.1), run("off", 2, 0.9), run("off", 3, 5.0),
+            run("first", 0, 0.1), run("first", 1, 0.1), run("first", 2, 0.25),
+            run("off", 0, 0.3, 32), run("first", 0, 0.3, 32), run("other", 0, 7.0)]
+    plain, split = generate_tables.paired_arms(runs, "off", "first")
+    assert plain["seeds"] == 3 and plain["code_split"] is None and split["code_split"] == 32
+    assert plain["off"]["worst_seed"] == 2 and plain["off"]["over_2x"] == 1
+    assert plain["off"]["worst_max_m"] == pytest.approx(9.0)
+    assert plain["first"]["worst_seed"] == 2 and plain["first"]["over_2x"] == 1 and plain["first"]["median_m"] == 0.1
+    assert plain["changed"] == [(2, 0.9, 0.25)] and split["changed"] == []
+
+
 def test_readme_is_short():
     assert len(README.splitlines()) <= 210
 

@@ -290,7 +290,10 @@ class ClosureParams(NamedTuple):
     its own scans; 1 lets a closure be taken inside another's watch. A closure still
     watched when the run ends is judged in the path reported on the scans it had:
     undone where their share averages over ``undo_end`` (at least two scans; 1: never;
-    :func:`jaxslam.grid.undone_closures.judge_at_end`).
+    :func:`jaxslam.grid.undone_closures.judge_at_end`). Until the first closure is
+    taken, ``first_drift`` (m per m, the tracking's own drift; 0: off) bounds the jump
+    more tightly, by that times the odometry distance since the start, or ``jump``
+    where that is more (:func:`jaxslam.grid.closure.closure_outcome`).
     """
 
     trigger: Array | float = 0.25
@@ -306,6 +309,7 @@ class ClosureParams(NamedTuple):
     undo_fast: Array | float = 1.0
     nest: Array | float = 0.0
     undo_end: Array | float = 0.2
+    first_drift: Array | float = 0.02
 
 
 class WeightParams(NamedTuple):
@@ -643,6 +647,9 @@ PARAMETER_SPECS: dict[str, ParamSpec] = {
     "closure.undo_fast": fraction("a watched closure is undone early where the free-space share is over this; 1: never"),
     "closure.nest": fraction("1 lets a closure be taken inside another's watch, 0 does not"),
     "closure.undo_end": fraction("a closure still watched at the end is undone over this share; 1: never"),
+    "closure.first_drift": at_least(0.0, "m/m", "until a closure is taken, a closure moves the match by at most this "
+                                    "times the odometry distance since the start or closure.jump, whichever is "
+                                    "more; 0: off"),
     "weights.likelihood_floor": ParamSpec("1", "probability of a beam that hits no wall", low=0.0, high=1.0, low_open=True),
     "weights.gain": positive("1", "gain of the log-likelihood in the weights"),
     "weights.resample_threshold": fraction("resample when the effective sample size falls under this times N"),

@@ -21,7 +21,7 @@ from jaxslam.grid.map import GridSpec, dense_reader
 from jaxslam.grid.algorithms import grid_algorithm
 from jaxslam.grid.experiment import map_layout
 from jaxslam.grid.filter import init, integrate_scan
-from jaxslam.grid.types import ClosureState, Scan, with_values
+from jaxslam.grid.types import ClosureParams, ClosureState, Scan, with_values
 from jaxslam.grid.tracking import track as _track
 from tests.grid.sim_state import state_and_scans
 
@@ -156,6 +156,9 @@ def tracked(sim):
     # default) takes such an increment within its 1.5 m search before the closure
     # search sees it, as it should a single increment that jumped.
     assert config.recover_radius > 0
+    # No closure has been taken in the fixture's state, so the first closure's bound
+    # (closure.first_drift) would hold the jump to 2 m; it has a test of its own.
+    params = with_values(params, {"closure.first_drift": np.float64(0.0)})
     return track, state, scans, params, dataclasses.replace(config, closure=True, recover_radius=0.0)
 
 
@@ -579,3 +582,31 @@ def test_the_map_bound_refuses_a_first_closure_onto_an_alias_doors_repeated_metr
     assert bool(plain[3]) and abs(abs(error[0]) - 6.0) < 0.1 and abs(error[1]) < 0.1, (error, plain[:4])
     assert float(plain[1]) / float(first[1]) > 3.0  # the alias scores as a full match, the true pose does not
     assert not bool(first[3]) and _on_true_pose(true_step, first), first[:4]
+
+
+def test_the_first_drift_bound_refuses_the_alias_before_any_closure_and_only_then(sim, tracked):
+    """``closure.first_drift`` at its default, 0.02: the corridor of the test above, 50 m
+    of odometry and no closure taken, so the jump is bounded by 1 m and the scan stays
+    on the true pose, where with the bound off (0) the search takes the alias 6 m back.
+    Once a closure has been taken (its correction :math:`A` non-zero) the bound is the
+    ``closure.drift`` one again and the same alias wins. All three runs are one
+    compiled program."""
+    track, _, _, params, config = tracked
+    assert ClosureParams().first_drift == 0.02
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
+    off = with_values(at_once, {"closure.first_drift": np.float64(0.0)})
+    first = with_values(at_once, {"closure.first_drift": np.float64(ClosureParams().first_drift)})
+    state, scan, true_pose = _corridor_state(sim, params)
+    with jax.enable_x64(True):
+        true_step = se2_between(np.asarray(state.poses[0])[None], true_pose[None])[0]
+        fresh = state._replace(closure=_memory(travelled=50.0))
+        after = state._replace(closure=_memory(travelled=50.0, applied=[0.4, -0.2, 0.01]))
+        plain = track(fresh, true_step, scan, off, config)
+        compiled = track._cache_size()
+        bounded = track(fresh, true_step, scan, first, config)
+        later = track(after, true_step, scan, first, config)
+        assert track._cache_size() == compiled
+    for closed in (plain, later):
+        error = se2_between(true_step[None], np.asarray(closed[0])[None])[0]
+        assert bool(closed[3]) and abs(abs(error[0]) - 6.0) < 0.1 and abs(error[1]) < 0.1, (error, closed[:4])
+    assert not bool(bounded[3]) and _on_true_pose(true_step, bounded), bounded[:4]
