@@ -299,6 +299,9 @@ TAIL_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian.json"),
 BOUNDED_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian_first.json")]
 """The causes table's rows with the first closure bounded (``closure.first_drift`` 0.02)."""
 
+TRIGGER_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian_trigger.json")]
+"""The causes table's rows with the search triggered under 0.35 (``closure.trigger``)."""
+
 
 def _cpu(data: dict) -> str:
     """The CPU a diagnostics file names, ``AMD EPYC 25/1``."""
@@ -371,7 +374,8 @@ def paired_arms(runs: list[dict], without: str, with_: str) -> list[dict]:
     (``filter`` ``srupf-gm[without]`` and ``srupf-gm[with_]``): each arm's median
     seed, worst seed (and its seed), count of seeds over twice the median seed and
     worst relation, and the seeds whose mean differs between the arms, as
-    ``(seed, without's mean, with_'s mean)``. Seeds run in one arm only are left out."""
+    ``(seed, without's mean, with_'s mean)``. Seeds run in one arm only are left out,
+    and a log and split that only one arm ran."""
     arms: dict[tuple, dict[str, dict[int, dict]]] = collections.defaultdict(lambda: {without: {}, with_: {}})
     for run in runs:
         variant = run["filter"].partition("[")[2].rstrip("]")
@@ -380,6 +384,8 @@ def paired_arms(runs: list[dict], without: str, with_: str) -> list[dict]:
     rows = []
     for (log, split), arm in sorted(arms.items(), key=lambda item: (item[0][0], item[0][1] or 0)):
         seeds = sorted(set(arm[without]) & set(arm[with_]))
+        if not seeds:
+            continue
         row = {"log": log, "code_split": split, "seeds": len(seeds)}
         for variant in (without, with_):
             means = {seed: arm[variant][seed]["mean_m"] for seed in seeds}
@@ -394,24 +400,25 @@ def paired_arms(runs: list[dict], without: str, with_: str) -> list[dict]:
     return rows
 
 
-def first_drift_table() -> str:
-    """``srupf-gm`` with ``closure.first_drift`` off and at 0.02, the same seeds and
-    program (``robustness_first_drift.json``), per log and XLA code split."""
+def paired_table(name: str, without: str, with_: str, without_label: str, with_label: str) -> str:
+    """``srupf-gm`` under two settings, the same seeds and program (``name``, the arms
+    ``srupf-gm[without]`` and ``srupf-gm[with_]``), per log and XLA code split
+    (:func:`paired_arms`)."""
     from jaxslam.runtime.compiler import OPTIONS
 
     fixed = str(OPTIONS["xla_cpu_parallel_codegen_split_count"])
     rows = []
-    for row in paired_arms(load("robustness_first_drift.json")["runs"], "off", "first"):
+    for row in paired_arms(load(name)["runs"], without, with_):
         cells = []
-        for variant in ("off", "first"):
+        for variant in (without, with_):
             arm = row[variant]
             cells.append(f"{arm['median_m']:.3f}, {arm['worst_m']:.3f} (seed {arm['worst_seed']}), "
                          f"{arm['over_2x']}, {arm['worst_max_m']:.2f} m")
         changed = "; ".join(f"{seed}: {a:.3f} to {b:.3f}" for seed, a, b in row["changed"]) or "none"
         rows.append([LOG_NAMES.get(row["log"], row["log"]), str(row["code_split"] or fixed), str(row["seeds"]), *cells,
                      changed])
-    return _table(["log", "code split", "seeds", "off: median, worst seed, over 2x median, worst relation",
-                   "0.02: the same", "seeds that changed (mean, m)"], rows)
+    return _table(["log", "code split", "seeds", f"{without_label}: median, worst seed, over 2x median, worst relation",
+                   f"{with_label}: the same", "seeds that changed (mean, m)"], rows)
 
 
 def _tail(cell: dict) -> str:
@@ -615,8 +622,10 @@ TABLES = {
                                          "with the recovery and wider proposals", "without"),
     "map_bound": lambda: comparison_table("robustness_map_bound.json", "robustness_no_map_bound.json",
                                           "with the map bound", "without", tail=True),
-    "first_drift": first_drift_table,
+    "first_drift": lambda: paired_table("robustness_first_drift.json", "off", "first", "off", "0.02"),
     "tail_causes_bounded": lambda: tail_causes_table(BOUNDED_CAUSE_LOGS),
+    "trigger": lambda: paired_table("robustness_trigger.json", "t25", "t35", "0.25", "0.35"),
+    "tail_causes_trigger": lambda: tail_causes_table(TRIGGER_CAUSE_LOGS),
 }
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
@@ -631,7 +640,9 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "coarse_stage": "robustness_coarse_stage.json",
             "recovery": "robustness_recovery.json", "map_bound": "robustness_map_bound.json",
             "first_drift": "robustness_first_drift.json",
-            "tail_causes_bounded": lambda: tail_causes_machines(BOUNDED_CAUSE_LOGS)}
+            "tail_causes_bounded": lambda: tail_causes_machines(BOUNDED_CAUSE_LOGS),
+            "trigger": "robustness_trigger.json",
+            "tail_causes_trigger": lambda: tail_causes_machines(TRIGGER_CAUSE_LOGS)}
 
 
 def write_all(folder: Path = GENERATED) -> list[Path]:

@@ -107,9 +107,9 @@ def test_a_runs_first_closure_is_measured_against_the_drift_since_the_start():
 
 
 def test_paired_arms_compare_the_seeds_both_variants_ran_per_log_and_code_split():
-    """Seeds run by one arm only are left out; the worst seed and the seeds over twice
-    the median are each arm's own; code splits are separate rows; the changed seeds
-    are those whose mean differs."""
+    """Seeds run by one arm only are left out, and a code split only one arm ran; the
+    worst seed and the seeds over twice the median are each arm's own; code splits are
+    separate rows; the changed seeds are those whose mean differs."""
     sys.path.insert(0, str(ROOT / "docs"))
     import generate_tables
 
@@ -119,7 +119,7 @@ def test_paired_arms_compare_the_seeds_both_variants_ran_per_log_and_code_split(
 
     runs = [run("off", 0, 0.1), run("off", 1, 0.1), run("off", 2, 0.9), run("off", 3, 5.0),
             run("first", 0, 0.1), run("first", 1, 0.1), run("first", 2, 0.25),
-            run("off", 0, 0.3, 32), run("first", 0, 0.3, 32), run("other", 0, 7.0)]
+            run("off", 0, 0.3, 32), run("first", 0, 0.3, 32), run("other", 0, 7.0), run("off", 0, 0.4, 16)]
     plain, split = generate_tables.paired_arms(runs, "off", "first")
     assert plain["seeds"] == 3 and plain["code_split"] is None and split["code_split"] == 32
     assert plain["off"]["worst_seed"] == 2 and plain["off"]["over_2x"] == 1
