@@ -482,8 +482,9 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
         # No search while the last closure is watched (unless ``closure.nest``): a closure
         # taken inside another's watch would restart it, and the first would never be judged.
         nest_ok = ~watch.watching | (jnp.asarray(params.closure.nest, dtype) > 0)
-        triggered = ~watch.undo & ~watch.holding & nest_ok & (
-            score / count < jnp.asarray(params.closure.trigger, dtype)) & (
+        trigger = jnp.maximum(jnp.asarray(params.closure.trigger, dtype),
+                              jnp.asarray(params.closure.trigger_ratio, dtype) * memory.level)
+        triggered = ~watch.undo & ~watch.holding & nest_ok & (score / count < trigger) & (
             watch.conflict >= jnp.asarray(params.closure.conflict, dtype))
 
         def coarse(radius=None, reach=None):
@@ -576,6 +577,7 @@ def closure_outcome(carry: dict, count: Array, memory: ClosureState,
         before=jnp.where(closed, travelled, jnp.where(undo, 0.0, before)),
         found=jnp.where(closed, correction, candidate),
         kept=offset,  # record_applied adds a closure's correction
+        level=memory.level,
     )
     # what an undo takes back, for the path reported
     # (:func:`jaxslam.grid.undone_closures.take_back`): the scans since the closure, A

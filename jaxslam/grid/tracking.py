@@ -117,6 +117,10 @@ from jaxslam.grid.score import make_score_fn
 from jaxslam.grid.types import GridSlamConfig, GridSlamParams, GridSlamState, Odometry, Scan, as_odometry
 
 
+LEVEL_RATE = 0.005
+"""Weight of each scan in the running mean of the tracking's scores (about 200 scans)."""
+
+
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
     conflict (), memory, undo (4,))`` (``closed``: the loop-closure search's pose
@@ -181,6 +185,8 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
         pose = jnp.where(undone, matched, pose)
         accepted = accepted | undone
         memory = record_applied(memory, taken, se2.compose(pose, se2.inverse(local)))
+    if config.closure:  # the recent matches' mean score (closure.trigger_ratio)
+        memory = memory._replace(level=memory.level + LEVEL_RATE * (score.astype(dtype) - memory.level))
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
     return motion, score, accepted, closed, conflict, memory, undo
 

@@ -310,6 +310,7 @@ class ClosureParams(NamedTuple):
     nest: Array | float = 0.0
     undo_end: Array | float = 0.2
     first_drift: Array | float = 0.02
+    trigger_ratio: Array | float = 0.0
 
 
 class WeightParams(NamedTuple):
@@ -488,13 +489,14 @@ class ClosureState(NamedTuple):
     before: Array
     found: Array
     kept: Array | None = None
+    level: Array | None = None
 
     @classmethod
     def empty(cls, dtype, map_bound: bool = False) -> "ClosureState":
         """No candidate held, no closure taken, nothing travelled; ``map_bound``: with
         the sum of the kept corrections (``config.closure_map_bound``)."""
         zero, pose = jnp.zeros((), dtype), jnp.zeros((3,), dtype)
-        return cls(pose, zero, zero, pose, zero, zero, zero, zero, pose, zero if map_bound else None)
+        return cls(pose, zero, zero, pose, zero, zero, zero, zero, pose, zero if map_bound else None, zero)
 
 
 class GridSlamState(NamedTuple):
@@ -650,6 +652,8 @@ PARAMETER_SPECS: dict[str, ParamSpec] = {
     "closure.first_drift": at_least(0.0, "m/m", "until a closure is taken, a closure moves the match by at most this "
                                     "times the odometry distance since the start or closure.jump, whichever is "
                                     "more; 0: off"),
+    "closure.trigger_ratio": at_least(0.0, "1", "the search also starts under this times the mean score of the "
+                                      "recent tracking matches (closure.trigger at least); 0: off"),
     "weights.likelihood_floor": ParamSpec("1", "probability of a beam that hits no wall", low=0.0, high=1.0, low_open=True),
     "weights.gain": positive("1", "gain of the log-likelihood in the weights"),
     "weights.resample_threshold": fraction("resample when the effective sample size falls under this times N"),
