@@ -302,6 +302,10 @@ BOUNDED_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian_first.json")]
 TRIGGER_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian_trigger.json")]
 """The causes table's rows with the search triggered under 0.35 (``closure.trigger``)."""
 
+TRIGGER_RATIO_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian_trigger_ratio.json")]
+"""The causes table's rows with the trigger raised to 0.7 times the recent matches'
+mean score (``closure.trigger_ratio``, the default)."""
+
 
 def _cpu(data: dict) -> str:
     """The CPU a diagnostics file names, ``AMD EPYC 25/1``."""
@@ -626,6 +630,8 @@ TABLES = {
     "tail_causes_bounded": lambda: tail_causes_table(BOUNDED_CAUSE_LOGS),
     "trigger": lambda: paired_table("robustness_trigger.json", "t25", "t35", "0.25", "0.35"),
     "tail_causes_trigger": lambda: tail_causes_table(TRIGGER_CAUSE_LOGS),
+    "trigger_ratio": lambda: paired_table("robustness_trigger_ratio.json", "r0", "r70", "fixed at 0.25", "ratio 0.7"),
+    "tail_causes_trigger_ratio": lambda: tail_causes_table(TRIGGER_RATIO_CAUSE_LOGS),
 }
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
@@ -642,7 +648,9 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "first_drift": "robustness_first_drift.json",
             "tail_causes_bounded": lambda: tail_causes_machines(BOUNDED_CAUSE_LOGS),
             "trigger": "robustness_trigger.json",
-            "tail_causes_trigger": lambda: tail_causes_machines(TRIGGER_CAUSE_LOGS)}
+            "tail_causes_trigger": lambda: tail_causes_machines(TRIGGER_CAUSE_LOGS),
+            "trigger_ratio": "robustness_trigger_ratio.json",
+            "tail_causes_trigger_ratio": lambda: tail_causes_machines(TRIGGER_RATIO_CAUSE_LOGS)}
 
 
 def write_all(folder: Path = GENERATED) -> list[Path]:

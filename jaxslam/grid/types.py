@@ -310,7 +310,7 @@ class ClosureParams(NamedTuple):
     nest: Array | float = 0.0
     undo_end: Array | float = 0.2
     first_drift: Array | float = 0.02
-    trigger_ratio: Array | float = 0.0
+    trigger_ratio: Array | float = 0.7
 
 
 class WeightParams(NamedTuple):
@@ -477,6 +477,9 @@ class ClosureState(NamedTuple):
         kept: ``()`` the sum of the position corrections of the closures taken and not
             undone (``config.closure_map_bound``; None without it, so that the program
             is the one without the bound).
+        level: ``()`` the running mean of the tracking's scores (fraction of the
+            matched beams), each scan weighted :data:`jaxslam.grid.tracking.LEVEL_RATE`
+            from 0 at the start; ``closure.trigger_ratio`` times it raises the trigger.
     """
 
     held: Array

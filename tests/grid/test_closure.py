@@ -22,7 +22,7 @@ from jaxslam.grid.algorithms import grid_algorithm
 from jaxslam.grid.experiment import map_layout
 from jaxslam.grid.filter import init, integrate_scan
 from jaxslam.grid.types import ClosureParams, ClosureState, Scan, with_values
-from jaxslam.grid.tracking import track as _track
+from jaxslam.grid.tracking import LEVEL_RATE, track as _track
 from tests.grid.sim_state import state_and_scans
 
 
@@ -230,15 +230,12 @@ def test_the_reach_grows_with_the_distance_since_the_last_closure(sim, tracked):
         assert np.hypot(*error[:2]) > 0.5, error
 
 
-def test_a_raised_trigger_closes_a_return_whose_match_fits_the_copy_it_drew(sim, tracked):
-    """A robot back at a place mapped long ago, 1.6 m and 5 deg off it, has already drawn
-    a copy of the place where it thinks it is: scan 3 written once at the drifted pose
-    with 70 % of its beams. The local match fits that copy at 0.28 of its beams, over
-    the default trigger (0.25), and the scan stays on the copy, metres off; under a
-    trigger of 0.35 the search runs, and the true pose, where the old map scores 1.5
-    times as well, replaces the match (``docs/benchmarks.md``, "The trigger")."""
-    track, state, scans, params, config = tracked
-    assert ClosureParams().trigger == 0.25
+def _return_onto_a_copy(sim, tracked):
+    """A robot back at a place mapped long ago, 1.6 m and 5 deg off it, that has already
+    drawn a copy of the place where it thinks it is: scan 3 written once at the drifted
+    pose with 70 % of its beams. ``(state with the copy, odometry step, true step,
+    params that close at once)``."""
+    _, state, scans, params, config = tracked
     at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
     true_pose = np.asarray(sim.true_poses[3], np.float64)
     drifted = se2_compose(np.array([[1.2, -1.05, math.radians(5.0)]]), true_pose[None])[0]
@@ -248,15 +245,72 @@ def test_a_raised_trigger_closes_a_return_whose_match_fits_the_copy_it_drew(sim,
     with jax.enable_x64(True):
         maps, _, _ = jax.jit(integrate_scan, static_argnums=4)(
             state.maps, np.repeat(drifted[None], 2, 0), Scan(scans[3].ranges, valid, 0.0), params, config)
-        copied = state._replace(maps=maps)
-        step = se2_between(np.asarray(state.poses[0])[None], drifted[None])[0]
+    step = se2_between(np.asarray(state.poses[0])[None], drifted[None])[0]
+    true_step = se2_between(np.asarray(state.poses[0])[None], true_pose[None])[0]
+    return state._replace(maps=maps), step, true_step, at_once
+
+
+def _closed_onto_the_old_map(result, true_step) -> bool:
+    """The tracked motion is the closure's, within 0.15 m and 0.5 deg of the true one."""
+    error = se2_between(true_step[None], np.asarray(result[0])[None])[0]
+    return bool(result[3]) and np.hypot(*error[:2]) < 0.15 and abs(error[2]) < math.radians(0.5)
+
+
+def test_a_raised_trigger_closes_a_return_whose_match_fits_the_copy_it_drew(sim, tracked):
+    """The local match of a return onto a copy it drew fits the copy at 0.28 of its
+    beams, over the default trigger (0.25), and the scan stays on the copy, metres off;
+    under a trigger of 0.35 the search runs, and the true pose, where the old map scores
+    1.5 times as well, replaces the match (``docs/benchmarks.md``, "The trigger")."""
+    track, _, scans, _, config = tracked
+    assert ClosureParams().trigger == 0.25
+    copied, step, true_step, at_once = _return_onto_a_copy(sim, tracked)
+    with jax.enable_x64(True):
         low = track(copied, step, scans[3], at_once, config)
         closed = track(copied, step, scans[3], with_values(at_once, {"closure.trigger": np.float64(0.35)}), config)
-    true_step = se2_between(np.asarray(state.poses[0])[None], true_pose[None])[0]
     assert 0.25 < float(low[1]) < 0.35 and not bool(low[3]), low[:4]
     assert np.hypot(*se2_between(true_step[None], np.asarray(low[0])[None])[0, :2]) > 1.0
-    error = se2_between(true_step[None], np.asarray(closed[0])[None])[0]
-    assert bool(closed[3]) and np.hypot(*error[:2]) < 0.15 and abs(error[2]) < math.radians(0.5), (error, closed[:4])
+    assert _closed_onto_the_old_map(closed, true_step), closed[:4]
+
+
+def test_the_trigger_rises_with_the_level_of_the_recent_matches(sim, tracked):
+    """``closure.trigger_ratio`` (0.7): the same return is searched and closed after
+    matches that scored 0.5 of their beams on average (0.7 x 0.5 = 0.35, over its 0.28),
+    and stays on the copy after matches that scored 0.3 (0.21: the trigger is 0.25), as
+    it does at ratio 0 whatever the level."""
+    track, _, scans, _, config = tracked
+    assert ClosureParams().trigger_ratio == 0.7
+    copied, step, true_step, at_once = _return_onto_a_copy(sim, tracked)
+
+    def at(level, ratio=0.7):
+        state = copied._replace(closure=copied.closure._replace(level=np.float64(level)))
+        return track(state, step, scans[3], with_values(at_once, {"closure.trigger_ratio": np.float64(ratio)}), config)
+
+    with jax.enable_x64(True):
+        high, low, off = at(0.5), at(0.3), at(0.5, ratio=0.0)
+    assert _closed_onto_the_old_map(high, true_step), high[:4]
+    for stayed in (low, off):
+        assert 0.25 < float(stayed[1]) < 0.35 and not bool(stayed[3]), stayed[:4]
+
+
+def test_the_level_is_the_running_mean_of_the_tracking_scores(sim, tracked):
+    """After each scan the level moves LEVEL_RATE of the way to that scan's score: three
+    scans (a good match, one 0.3 m off, the return onto a copy) against the float64
+    recurrence."""
+    track, state, scans, params, config = tracked
+    copied, step, _, at_once = _return_onto_a_copy(sim, tracked)
+    true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+    steps = [(state, true_step, params), (state, true_step + np.array([0.3, 0.0, 0.0]), params),
+             (copied, step, at_once)]
+    level, want, scores = np.float64(0.45), np.float64(0.45), []
+    with jax.enable_x64(True):
+        for start, increment, scan_params in steps:
+            start = start._replace(closure=start.closure._replace(level=level))
+            result = track(start, increment, scans[3], scan_params, config)
+            scores.append(float(result[1]))
+            want = want + LEVEL_RATE * (scores[-1] - want)
+            level = result[5].level
+            np.testing.assert_allclose(float(level), want, rtol=1e-12)
+    assert min(abs(a - b) for a, b in zip(scores, scores[1:] + scores[:1])) > 0.01, scores
 
 
 def test_a_good_match_is_left_alone(sim, tracked):
