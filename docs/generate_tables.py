@@ -303,7 +303,7 @@ TRIGGER_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian_trigger.json"
 """The causes table's rows with the search triggered under 0.35 (``closure.trigger``)."""
 
 TRIGGER_RATIO_CAUSE_LOGS = [("MIT Killian", "closure_diagnostics_killian_trigger_ratio.json")]
-"""The causes table's rows with the trigger raised to 0.7 times the recent matches'
+"""The causes table's rows with the trigger raised to 0.8 times the recent matches'
 mean score (``closure.trigger_ratio``, the default)."""
 
 
@@ -404,25 +404,41 @@ def paired_arms(runs: list[dict], without: str, with_: str) -> list[dict]:
     return rows
 
 
-def paired_table(name: str, without: str, with_: str, without_label: str, with_label: str) -> str:
-    """``srupf-gm`` under two settings, the same seeds and program (``name``, the arms
-    ``srupf-gm[without]`` and ``srupf-gm[with_]``), per log and XLA code split
-    (:func:`paired_arms`)."""
+def paired_table(name: str, *arms: tuple[str, str]) -> str:
+    """``srupf-gm`` under two or more settings, the same seeds and program (``name``; each
+    arm ``(variant, label)``, the runs ``srupf-gm[variant]``), per log and XLA code split
+    (:func:`paired_arms`, each arm against the first); the last column lists the seeds
+    whose mean differs between any two arms, with each arm's mean."""
     from jaxslam.runtime.compiler import OPTIONS
 
     fixed = str(OPTIONS["xla_cpu_parallel_codegen_split_count"])
+    (base, base_label), others = arms[0], arms[1:]
+    runs = load(name)["runs"]
+    pairs = [{(row["log"], row["code_split"]): row for row in paired_arms(runs, base, variant)}
+             for variant, _ in others]
     rows = []
-    for row in paired_arms(load(name)["runs"], without, with_):
+    for key, first in pairs[0].items():
+        if not all(key in pair for pair in pairs):
+            continue
         cells = []
-        for variant in (without, with_):
-            arm = row[variant]
+        for variant, pair in zip([base, *(variant for variant, _ in others)], [pairs[0], *pairs]):
+            arm = pair[key][variant]
             cells.append(f"{arm['median_m']:.3f}, {arm['worst_m']:.3f} (seed {arm['worst_seed']}), "
                          f"{arm['over_2x']}, {arm['worst_max_m']:.2f} m")
-        changed = "; ".join(f"{seed}: {a:.3f} to {b:.3f}" for seed, a, b in row["changed"]) or "none"
-        rows.append([LOG_NAMES.get(row["log"], row["log"]), str(row["code_split"] or fixed), str(row["seeds"]), *cells,
-                     changed])
-    return _table(["log", "code split", "seeds", f"{without_label}: median, worst seed, over 2x median, worst relation",
-                   f"{with_label}: the same", "seeds that changed (mean, m)"], rows)
+        means = {}
+        for index, pair in enumerate(pairs):
+            for seed, a, b in pair[key]["changed"]:
+                means.setdefault(seed, {0: a})[index + 1] = b
+        changed = []
+        for seed in sorted(means):
+            values = [means[seed].get(index, means[seed][0]) for index in range(len(arms))]
+            changed.append(f"{seed}: " + " to ".join(f"{value:.3f}" for value in values))
+        log, split = key
+        rows.append([LOG_NAMES.get(log, log), str(split or fixed), str(first["seeds"]), *cells,
+                     "; ".join(changed) or "none"])
+    heads = [f"{base_label}: median, worst seed, over 2x median, worst relation",
+             *(f"{label}: the same" for _, label in others)]
+    return _table(["log", "code split", "seeds", *heads, "seeds that changed (mean, m)"], rows)
 
 
 def _tail(cell: dict) -> str:
@@ -626,11 +642,12 @@ TABLES = {
                                          "with the recovery and wider proposals", "without"),
     "map_bound": lambda: comparison_table("robustness_map_bound.json", "robustness_no_map_bound.json",
                                           "with the map bound", "without", tail=True),
-    "first_drift": lambda: paired_table("robustness_first_drift.json", "off", "first", "off", "0.02"),
+    "first_drift": lambda: paired_table("robustness_first_drift.json", ("off", "off"), ("first", "0.02")),
     "tail_causes_bounded": lambda: tail_causes_table(BOUNDED_CAUSE_LOGS),
-    "trigger": lambda: paired_table("robustness_trigger.json", "t25", "t35", "0.25", "0.35"),
+    "trigger": lambda: paired_table("robustness_trigger.json", ("t25", "0.25"), ("t35", "0.35")),
     "tail_causes_trigger": lambda: tail_causes_table(TRIGGER_CAUSE_LOGS),
-    "trigger_ratio": lambda: paired_table("robustness_trigger_ratio.json", "r0", "r70", "fixed at 0.25", "ratio 0.7"),
+    "trigger_ratio": lambda: paired_table("robustness_trigger_ratio.json", ("r0", "fixed at 0.25"), ("r70", "ratio 0.7"),
+                                             ("r80", "ratio 0.8")),
     "tail_causes_trigger_ratio": lambda: tail_causes_table(TRIGGER_RATIO_CAUSE_LOGS),
 }
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",

@@ -310,7 +310,7 @@ class ClosureParams(NamedTuple):
     nest: Array | float = 0.0
     undo_end: Array | float = 0.2
     first_drift: Array | float = 0.02
-    trigger_ratio: Array | float = 0.7
+    trigger_ratio: Array | float = 0.8
 
 
 class WeightParams(NamedTuple):

@@ -273,22 +273,25 @@ def test_a_raised_trigger_closes_a_return_whose_match_fits_the_copy_it_drew(sim,
 
 
 def test_the_trigger_rises_with_the_level_of_the_recent_matches(sim, tracked):
-    """``closure.trigger_ratio`` (0.7): the same return is searched and closed after
-    matches that scored 0.5 of their beams on average (0.7 x 0.5 = 0.35, over its 0.28),
-    and stays on the copy after matches that scored 0.3 (0.21: the trigger is 0.25), as
-    it does at ratio 0 whatever the level."""
+    """``closure.trigger_ratio`` (0.8): the same return, whose match fits the copy it
+    drew at 0.28 of its beams, is searched and closed after matches that scored 0.5 of
+    their beams on average (0.8 x 0.5 = 0.40) and 0.375 (0.30, where a ratio of 0.7
+    gives 0.26 and leaves it on the copy), and stays on the copy after matches that
+    scored 0.3 (0.24: the trigger is 0.25), as it does at ratio 0 whatever the level."""
     track, _, scans, _, config = tracked
-    assert ClosureParams().trigger_ratio == 0.7
+    assert ClosureParams().trigger_ratio == 0.8
     copied, step, true_step, at_once = _return_onto_a_copy(sim, tracked)
 
-    def at(level, ratio=0.7):
+    def at(level, ratio=None):
         state = copied._replace(closure=copied.closure._replace(level=np.float64(level)))
-        return track(state, step, scans[3], with_values(at_once, {"closure.trigger_ratio": np.float64(ratio)}), config)
+        scan_params = at_once if ratio is None else with_values(at_once, {"closure.trigger_ratio": np.float64(ratio)})
+        return track(state, step, scans[3], scan_params, config)
 
     with jax.enable_x64(True):
-        high, low, off = at(0.5), at(0.3), at(0.5, ratio=0.0)
-    assert _closed_onto_the_old_map(high, true_step), high[:4]
-    for stayed in (low, off):
+        high, middle, low, off, lower = at(0.5), at(0.375), at(0.3), at(0.5, ratio=0.0), at(0.375, ratio=0.7)
+    for closed in (high, middle):
+        assert _closed_onto_the_old_map(closed, true_step), closed[:4]
+    for stayed in (low, off, lower):
         assert 0.25 < float(stayed[1]) < 0.35 and not bool(stayed[3]), stayed[:4]
 
 
