@@ -48,8 +48,10 @@ watched when the log ended (``end_judgment``;
 :func:`jaxslam.grid.undone_closures.judge_at_end`).
 A third table says where each run's relations over 1 m lie and which closures were taken
 there (``bad_places``, :func:`bad_places`), with the decision behind the first place where
-the run went wrong (``cause``, :func:`cause`); ``tail_causes`` counts the causes over the
-runs in the tail (:func:`tail_causes`).
+the run went wrong (``cause``, :func:`cause`; where no right closure came, runs that
+hold ``info_track_search`` say whether the search ran there and which test refused its
+best candidate); ``tail_causes`` counts the causes over the runs in the tail
+(:func:`tail_causes`).
 """
 
 from __future__ import annotations
@@ -230,8 +232,10 @@ def bad_places(path: str, relations, closure_rows: list[dict], threshold: float 
     went wrong shows as one group from the place first seen to the place of the return;
     a return without a closure there was never searched for, or the search found
     nothing within its reach. ``first_place`` is the earliest of those groups where
-    most of the pair's relations are wrong (:data:`FIRST_SHARE`), and ``cause`` the
-    decision there (:func:`cause`)."""
+    most of the pair's relations are wrong (:data:`FIRST_SHARE`), ``cause`` the
+    decision there (:func:`cause`), and ``search``, for runs that hold
+    ``info_track_search``, what the search did in its later stretch
+    (:func:`search_summary`)."""
     from jaxslam.metrics.relations import match_timestamps, relation_errors
 
     run = np.load(path)
@@ -264,11 +268,79 @@ def bad_places(path: str, relations, closure_rows: list[dict], threshold: float 
         row[f"place_{rank + 1}"] = label(a, b, count)
         row[f"closures_{rank + 1}"] = " ".join(taken) or "none"
     failed = [(b, -count, a) for (a, b), count in largest if count >= FIRST_SHARE * totals[a, b]]
+    search = run["info_track_search"] if "info_track_search" in run.files else None
     if failed:
         b, count, a = min(failed)
         row["first_place"] = label(a, b, -count)
-        row["cause"] = cause(a == b, there(b))
+        rows = None if search is None else search[max(b * window - 1, 0):(b + 1) * window - 1]
+        row["cause"] = cause(a == b, there(b), rows)
+        if rows is not None:
+            row["search"] = search_summary(rows)
     return row
+
+
+def _default_jump() -> float:
+    from jaxslam.grid.types import ClosureParams
+
+    return float(ClosureParams().jump)
+
+
+MOVE_M = _default_jump()
+"""A candidate moves the pose when it lies at least this far from the local match (m):
+the filter's own ``closure.jump``. Nearer ones are the local match found again."""
+
+
+def best_candidate(search: np.ndarray) -> np.ndarray | None:
+    """The ``Info.track_search`` row of the best-scoring candidate the search found
+    (rows with kind 1) among those at least :data:`MOVE_M` from the local match, or of
+    the best of all where none is; None without a search."""
+    searched = np.flatnonzero(search[:, 0] == 1)
+    if not searched.size:
+        return None
+    moving = searched[search[searched, 2] >= MOVE_M]
+    pick = moving if moving.size else searched
+    return search[pick[np.argmax(search[pick, 1])]]
+
+
+def search_summary(search: np.ndarray) -> str:
+    """``Info.track_search`` of a stretch's scans in words: how many scans searched and
+    climbed a held candidate, and the best candidate the search found, with its score
+    (:func:`best_candidate`) with its score (fraction of the matched beams), distance
+    from the local match and the tests that refused it (:func:`refusal`)."""
+    from jaxslam.grid.closure import REFUSED_ALIAS, REFUSED_GAIN, REFUSED_JUMP, REFUSED_SCORE
+
+    search = np.asarray(search, np.float64).reshape(-1, 4)
+    searched, held = search[:, 0] == 1, search[:, 0] == 2
+    text = f"{int(searched.sum())} searched, {int(held.sum())} held"
+    best = best_candidate(search)
+    if best is not None:
+        bits = int(best[3])
+        names = [name for bit, name in ((REFUSED_SCORE, "score"), (REFUSED_GAIN, "gain"), (REFUSED_JUMP, "jump"),
+                                        (REFUSED_ALIAS, "alias")) if bits & bit]
+        text += f"; best {best[1]:.2f} at {best[2]:.1f} m" + (f" ({'+'.join(names)})" if names else " (won)")
+    return text
+
+
+def refusal(search: np.ndarray) -> str:
+    """Why a stretch without a right closure had none, from ``Info.track_search`` of its
+    scans (:func:`jaxslam.grid.closure.closure_outcome`): ``unsearched`` where no scan
+    ran the search, ``unconfirmed`` where a candidate won a scan (and was held) but
+    never ``closure.confirm`` in a row, and otherwise the first test, in the order
+    score, gain, jump bound, alias, that refused the best candidate the search found
+    there (:func:`best_candidate`)."""
+    from jaxslam.grid.closure import REFUSED_ALIAS, REFUSED_GAIN, REFUSED_JUMP, REFUSED_SCORE
+
+    search = np.asarray(search, np.float64).reshape(-1, 4)
+    searched = search[:, 0] == 1
+    if not searched.any():
+        return "unsearched"
+    if np.any(search[:, 0] == 2) or np.any(searched & (search[:, 3] == 0)):
+        return "unconfirmed"
+    bits = int(best_candidate(search)[3])
+    for bit, key in ((REFUSED_SCORE, "low"), (REFUSED_GAIN, "flat"), (REFUSED_JUMP, "far"), (REFUSED_ALIAS, "alias")):
+        if bits & bit:
+            return key
+    return "unconfirmed"
 
 
 FIRST_SHARE = 0.5
@@ -285,20 +357,28 @@ CAUSES = {
     "late": "right closure, late",
     "unjudged": "closure no relation judges",
     "none": "no right closure",
+    "unsearched": "no right closure: no search there",
+    "unconfirmed": "no right closure: a candidate not confirmed",
+    "low": "no right closure: candidates under the minimum score",
+    "flat": "no right closure: candidates without the gain",
+    "far": "no right closure: candidates past the jump bound",
+    "alias": "no right closure: candidates of an undone closure",
     "local": "within one stretch",
 }
 """The decisions :func:`cause` names the first place a run went wrong by, with their
 labels (``tail_causes`` carries them into the JSON, where the docs' tables read them)."""
 
 
-def cause(one_stretch: bool, there: list[dict]) -> str:
+def cause(one_stretch: bool, there: list[dict], search: np.ndarray | None = None) -> str:
     """The decision behind a group of wrong relations (a key of :data:`CAUSES`), from the
     closures ``there`` (rows of :func:`closures`) taken in the group's later stretch:
     a group inside one stretch is ``local``; else, in this order, a wrong closure that
     was kept, a right closure that was undone, a right one kept (it came after some of
     the stretch's scans had gone wrong, or fixed only part of it), a closure without a
-    relation to judge it, and otherwise no right closure at all. A lineage lost at
-    resampling shows here as one of the others: the saved run holds the chosen path only."""
+    relation to judge it, and otherwise no right closure at all: ``none``, or with
+    ``search`` (``Info.track_search`` of the stretch's scans) why the search found none
+    (:func:`refusal`). A lineage lost at resampling shows here as one of the others:
+    the saved run holds the chosen path only."""
     if one_stretch:
         return "local"
     kept = [r["verdict"] for r in there if r["undone_at"] is None]
@@ -311,7 +391,7 @@ def cause(one_stretch: bool, there: list[dict]) -> str:
         return "late"
     if "?" in kept + undone:
         return "unjudged"
-    return "none"
+    return "none" if search is None else refusal(search)
 
 
 def tail_causes(places: list[dict], factor: float) -> dict:

@@ -224,6 +224,16 @@ FAST_SHARE = 0.2
 """Share of ``closure.watch`` after which ``closure.undo_fast`` can undo a closure (with
 at least two scans watched: a robot standing still repeats one scan's conflict)."""
 
+REFUSED_SCORE = 1
+"""``Info.track_search``'s refusal bit: the candidate scored under ``closure.min_score``."""
+REFUSED_GAIN = 2
+"""... it scored under ``closure.gain`` times the local match."""
+REFUSED_JUMP = 4
+"""... it lay farther from the local match than the jump bound allows."""
+REFUSED_ALIAS = 8
+"""... its correction is that of a closure undone before (an alias)."""
+
+
 def coarse_window(read: CellReader, frame, centre: Array, half: int, saturation) -> tuple[Array, Array]:
     r"""The coarse map around ``centre (2,)`` (world, m): ``(coarse (n, n) [row, col],
     corner (2,))``, with ``corner`` the world position of coarse cell ``(0, 0)``'s corner.
@@ -521,10 +531,15 @@ def closure_phases(read: CellReader, frame, local_points: Array, weights: Array,
 
 
 def closure_outcome(carry: dict, count: Array, memory: ClosureState,
-                    params) -> tuple[Array, Array, Array, Array, Array, ClosureState]:
+                    params) -> tuple[Array, Array, Array, Array, Array, ClosureState, Array]:
     r"""The local match after :func:`closure_phases` (``carry``), or the closure that
-    replaces it: ``(pose, score, closed, undo, conflict, memory)`` (see
-    :func:`closure_phases`).
+    replaces it: ``(pose, score, closed, undo, conflict, memory, search)`` (see
+    :func:`closure_phases`; ``search (4,)``: the candidate this scan judged, recorded
+    for every scan as ``Info.track_search``: 1 where the search ran, 2 where a held
+    candidate climbed, 0 neither (and the rest 0); its score as a fraction of the
+    matched beams; its distance from the local match (m); and the tests that refused
+    it, a sum of :data:`REFUSED_SCORE`, :data:`REFUSED_GAIN`, :data:`REFUSED_JUMP` and
+    :data:`REFUSED_ALIAS`, 0 where it won the scan).
 
     With ``config.closure_map_bound``, ``memory.kept`` holds :math:`\Sigma`, the sum of the position
     corrections :math:`|A_{xy}|` of the closures taken and not undone, and bounds the
@@ -562,12 +577,13 @@ def closure_outcome(carry: dict, count: Array, memory: ClosureState,
     first_drift = jnp.asarray(params.closure.first_drift, dtype)
     first = jnp.all(applied == 0) & (first_drift > 0)  # no closure taken yet
     bound = jnp.where(first, jnp.minimum(bound, first_drift * travelled), bound)
-    wins = (
-        (holding | triggered) & ~alias
-        & (found / count >= jnp.asarray(params.closure.min_score, dtype))
-        & (found >= jnp.asarray(params.closure.gain, dtype) * score)
-        & (jnp.hypot(pose[0] - matched[0], pose[1] - matched[1]) <= jnp.maximum(jump, bound))
-    )
+    distance = jnp.hypot(pose[0] - matched[0], pose[1] - matched[1])
+    limit = jnp.maximum(jump, bound)
+    low = found / count < jnp.asarray(params.closure.min_score, dtype)
+    flat = found < jnp.asarray(params.closure.gain, dtype) * score
+    far = distance > limit
+    ran = holding | triggered
+    wins = ran & ~alias & ~low & ~flat & ~far
     scans = jnp.where(wins, watch.held_scans + 1, 0.0)
     closed = wins & (scans >= jnp.asarray(params.closure.confirm, dtype))
     keep = wins & ~closed
@@ -589,7 +605,12 @@ def closure_outcome(carry: dict, count: Array, memory: ClosureState,
     # what an undo takes back, for the path reported
     # (:func:`jaxslam.grid.undone_closures.take_back`): the scans since the closure, A
     taken_back = jnp.where(undo, jnp.concatenate([conflict_count[None], applied.astype(dtype)]), jnp.zeros((4,), dtype))
-    return jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, taken_back, watch.conflict, memory
+    refused = sum(jnp.where(test, float(bit), 0.0) for test, bit in
+                  ((low, REFUSED_SCORE), (flat, REFUSED_GAIN), (far, REFUSED_JUMP), (alias, REFUSED_ALIAS)))
+    search = jnp.where(ran, jnp.stack([jnp.where(holding, 2.0, 1.0), found / count, distance, refused]).astype(dtype),
+                       jnp.zeros((4,), dtype))
+    return (jnp.where(closed, pose, matched), jnp.where(closed, found, score), closed, taken_back, watch.conflict,
+            memory, search)
 
 
 def record_applied(memory: ClosureState, taken: Array, correction: Array) -> ClosureState:
@@ -603,7 +624,8 @@ def record_applied(memory: ClosureState, taken: Array, correction: Array) -> Clo
 
 
 __all__ = [
-    "BEAM_STRIDE", "FAST_SHARE", "POOL", "REFINE", "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
+    "BEAM_STRIDE", "FAST_SHARE", "POOL", "REFINE", "REFUSED_ALIAS", "REFUSED_GAIN", "REFUSED_JUMP", "REFUSED_SCORE",
+    "SEARCH_REACH", "SHIFT_CELLS", "TURN_STEP",
     "Watch", "candidate_scores", "closure_carry", "closure_outcome", "closure_phases", "coarse_candidates",
     "coarse_window", "conflict_fraction", "record_applied", "refine_count", "watch_closure",
     "window_half",

@@ -66,6 +66,7 @@ def summarise(info) -> dict[str, Any]:
         "track_closed": info.track_closed,
         "track_conflict": info.track_conflict,
         "track_undo": info.track_undo,
+        "track_search": info.track_search,
     }
 
 

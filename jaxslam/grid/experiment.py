@@ -50,7 +50,7 @@ ALGORITHMS = tuple(GRID_ALGORITHMS)
 KEYFRAME_PATHS = ("keyframes.linear_update", "keyframes.angular_update", "keyframes.temporal_update")
 # Per-scan outputs of the run kept for every scan (the rest is kept per keyframe).
 PER_SCAN_KEYS = ("poses", "ancestors", "keyframe", "motion", "track_score", "track_accepted", "track_closed",
-                 "track_conflict", "track_undo")
+                 "track_conflict", "track_undo", "track_search")
 
 def keyframe_rule(linear=None, angular=None, temporal=None,
                   algorithm: str | GridAlgorithm = "srupf-gm") -> tuple[float, float, float]:

@@ -379,6 +379,7 @@ def finish_step(
         track_closed=jnp.asarray(False),
         track_conflict=jnp.zeros((), log_weights.dtype),
         track_undo=jnp.zeros((4,), log_weights.dtype),
+        track_search=jnp.zeros((4,), log_weights.dtype),
         log_likelihood_increment=jnp.where(applied, increment, 0.0),
     )
     return new_state, info
@@ -444,6 +445,7 @@ def empty_info(state: GridSlamState, config: GridSlamConfig) -> GridSlamInfo:
         track_closed=jnp.asarray(False),
         track_conflict=zero,
         track_undo=jnp.zeros((4,), dtype),
+        track_search=jnp.zeros((4,), dtype),
         log_likelihood_increment=zero,
     )
 

@@ -123,18 +123,20 @@ LEVEL_RATE = 0.005
 
 def track(state: GridSlamState, increment: Array, observation: Scan, params: GridSlamParams, config: GridSlamConfig):
     """The tracked motion after one scan: ``(motion (3,), score (), accepted (), closed (),
-    conflict (), memory, undo (4,))`` (``closed``: the loop-closure search's pose
+    conflict (), memory, undo (4,), search (4,))`` (``closed``: the loop-closure search's pose
     replaced the local match, or a closure was undone; ``conflict``: the share of its beams
     ending in known free space; ``memory``: the state's
     :class:`~jaxslam.grid.types.ClosureState` after this scan;
-    ``undo``: what an undo took back, zeros otherwise; see :mod:`jaxslam.grid.closure`)."""
+    ``undo``: what an undo took back, zeros otherwise; ``search``: the closure candidate
+    judged, zeros where none was (:func:`jaxslam.grid.closure.closure_outcome`); see
+    :mod:`jaxslam.grid.closure`)."""
     dtype = state.poses.dtype
     best = best_particle(state)
     anchor = state.poses[best]
     predicted = se2.compose(state.motion, increment.astype(dtype))
     if not config.tracking:
         return (predicted, jnp.zeros((), dtype), jnp.asarray(False), jnp.asarray(False), jnp.zeros((), dtype),
-                state.closure, jnp.zeros((4,), dtype))
+                state.closure, jnp.zeros((4,), dtype), jnp.zeros((4,), dtype))
     guess = se2.compose(anchor, predicted)
     local_points, mask = match_geometry(observation, params, config)
     read = particle_reader(state, state.maps.tables[best], config)
@@ -172,10 +174,10 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     carry = run_phases(score_at, phases, carry, params, config)
     matched, score, origin = carry["matched"], carry["score"], carry["origin"]
     closed, conflict = jnp.asarray(False), jnp.zeros((), dtype)
-    undo = jnp.zeros((4,), dtype)
+    undo = search = jnp.zeros((4,), dtype)
     if config.closure:
         local = matched
-        matched, score, closed, undo, conflict, memory = closure_outcome(carry, count, memory, params)
+        matched, score, closed, undo, conflict, memory, search = closure_outcome(carry, count, memory, params)
         undone = undo[0] > 0
         taken, closed = closed, closed | undone
     score = score / count
@@ -188,7 +190,7 @@ def track(state: GridSlamState, increment: Array, observation: Scan, params: Gri
     if config.closure:  # the recent matches' mean score (closure.trigger_ratio)
         memory = memory._replace(level=memory.level + LEVEL_RATE * (score.astype(dtype) - memory.level))
     motion = jnp.where(accepted, se2.relative(anchor, pose), predicted)
-    return motion, score, accepted, closed, conflict, memory, undo
+    return motion, score, accepted, closed, conflict, memory, undo, search
 
 
 def match_phases(guess: Array, retry: Array, turned_score: Array, config: GridSlamConfig) -> list[Phase]:
@@ -353,8 +355,8 @@ def per_scan(keyframe_step):
              config: GridSlamConfig):
         control = as_odometry(control)
         dtype = state.poses.dtype
-        motion, score, accepted, closed, conflict, memory, undo = track(state, control.increment, observation,
-                                                                        params, config)
+        motion, score, accepted, closed, conflict, memory, undo, search = track(state, control.increment,
+                                                                                observation, params, config)
         delta = se2.relative(state.motion, motion)
         since = state.since_keyframe + jnp.stack([
             jnp.hypot(delta[0], delta[1]), jnp.abs(delta[2]), jnp.asarray(0.0 if control.dt is None else control.dt, dtype),
@@ -371,13 +373,13 @@ def per_scan(keyframe_step):
                 closure=jax.tree_util.tree_map(lambda a, b: jnp.where(applied, a, b), memory, state.closure),
             )
             return new, info._replace(track_score=score, track_accepted=accepted, track_closed=closed,
-                                      track_conflict=conflict, track_undo=undo)
+                                      track_conflict=conflict, track_undo=undo, track_search=search)
 
         def between(key, state):
             state = state._replace(motion=motion, since_keyframe=since, closure=memory)
             return state, empty_info(state, config)._replace(track_score=score, track_accepted=accepted,
                                                              track_closed=closed, track_conflict=conflict,
-                                                             track_undo=undo)
+                                                             track_undo=undo, track_search=search)
 
         return jax.lax.cond(is_keyframe(since, params), keyframe, between, key, state)
 

@@ -541,6 +541,7 @@ class GridSlamInfo(NamedTuple):
     track_closed: Array  # () bool: the loop-closure search's pose replaced the local match, or a closure was undone
     track_conflict: Array  # () share of the tracking match's beams ending in known free space
     track_undo: Array  # (4,) a closure undone here: scans since it was taken, its correction (x, y, θ); else 0
+    track_search: Array  # (4,) the closure candidate judged here: kind, score, distance, refusals (closure_outcome)
     log_likelihood_increment: Array  # () log sum_m w_m p(z | x_m, m_m)^weight_gain of a keyframe applied here; else 0
 
 

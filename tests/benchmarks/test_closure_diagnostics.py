@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from jaxslam.grid.closure import REFUSED_ALIAS as ALIAS, REFUSED_GAIN as GAIN, REFUSED_JUMP as JUMP
+from jaxslam.grid.closure import REFUSED_SCORE as SCORE
 from jaxslam.metrics.relations import Relations
 
 from . import load_benchmark, turning_path
@@ -192,7 +194,7 @@ def test_the_tail_counts_the_causes_of_the_runs_over_twice_the_median():
               enumerate([(0.1, "late"), (0.2, "none"), (0.3, "wrong"), (0.9, "none"), (1.5, "wrong")])]
     tail = closure_diagnostics.tail_causes(places, 2.0)
     assert tail["median_m"] == pytest.approx(0.3) and tail["runs"] == ["s3", "s4"]
-    assert tail["counts"] == {"wrong": 1, "undone": 0, "late": 0, "unjudged": 0, "none": 1, "local": 0}
+    assert tail["counts"] == {key: {"wrong": 1, "none": 1}.get(key, 0) for key in closure_diagnostics.CAUSES}
 
 
 def test_the_first_place_where_most_relations_went_wrong_names_the_cause(tmp_path):
@@ -218,3 +220,53 @@ def test_the_first_place_where_most_relations_went_wrong_names_the_cause(tmp_pat
     place = closure_diagnostics.bad_places(str(run), relations, taken, window=100, top=3)
     assert [place[f"place_{k}"] for k in (1, 2, 3)] == ["100-900: 80", "100-500: 50", "200-300: 5"]
     assert place["first_place"] == "100-500: 50" and place["cause"] == "late"
+
+
+def _search(*rows) -> np.ndarray:
+    """``Info.track_search`` rows ``(kind, score, distance, refusals)`` after 20 scans
+    that judged no candidate."""
+    return np.concatenate([np.zeros((20, 4)), np.array(rows, float).reshape(-1, 4)])
+
+
+@pytest.mark.parametrize("search, expected", [
+    (_search(), "unsearched"),
+    (_search([1, 0.2, 3.0, SCORE], [1, 0.3, 2.0, SCORE + GAIN]), "low"),
+    # the best candidate that moves the pose decides, not the local match found again
+    (_search([1, 0.5, 0.1, GAIN], [1, 0.4, 4.0, JUMP], [1, 0.2, 3.0, SCORE]), "far"),
+    (_search([1, 0.4, 4.0, GAIN], [1, 0.3, 2.0, JUMP]), "flat"),
+    (_search([1, 0.45, 4.0, ALIAS]), "alias"),
+    (_search([1, 0.2, 0.1, SCORE]), "low"),  # none moves the pose: the best of all
+    (_search([1, 0.45, 4.0, 0], [1, 0.4, 4.0, GAIN]), "unconfirmed"),  # won a scan, lost the next
+    (_search([1, 0.45, 4.0, 0], [2, 0.4, 4.0, GAIN]), "unconfirmed"),
+])
+def test_no_right_closure_is_explained_by_what_the_search_did_there(search, expected):
+    """With the stretch's ``Info.track_search`` a stretch without a right closure names
+    why: no search, a candidate held but not confirmed, or the first test that refused
+    the best candidate that moves the pose; without it the cause stays ``none``."""
+    assert closure_diagnostics.cause(False, [_taken("W", 930)], search) == expected
+    assert closure_diagnostics.cause(False, [], search) == expected
+    assert closure_diagnostics.cause(False, [_taken("R")], search) == "late"  # a closure decides first
+    assert closure_diagnostics.cause(False, [], None) == "none"
+
+
+def test_the_search_record_of_the_first_bad_place_is_summarised(tmp_path):
+    """The run of the first-place test without its closure at 520, saved with
+    ``info_track_search``: the search ran on scans 510 and 512 of stretch 500 and its
+    best candidate 4 m away was refused for its score, which names the cause and the
+    ``search`` column; the same candidate at scan 620 (another stretch) does not count."""
+    n = 1000
+    truth = np.stack([0.1 * np.arange(n), np.zeros(n), np.zeros(n)], -1)
+    path = truth.copy()
+    path[500:550, 1] += 3.0
+    search = np.zeros((n - 1, 4))
+    search[509] = [1, 0.25, 4.0, SCORE]  # scan 510 (info[i] is scan i + 1)
+    search[511] = [1, 0.3, 0.2, GAIN]
+    search[619] = [1, 0.6, 4.0, JUMP]
+    run = tmp_path / "run.npz"
+    np.savez(run, trajectory=path, scan_times=np.arange(n, dtype=float), info_track_search=search)
+    pairs = [(100 + k, 500 + k) for k in range(50)]
+    relations = Relations(None, np.array([float(a) for a, _ in pairs]), np.array([float(b) for _, b in pairs]),
+                          np.array([truth[b] - truth[a] for a, b in pairs]), np.arange(len(pairs)))
+    place = closure_diagnostics.bad_places(str(run), relations, [], window=100, top=3)
+    assert place["first_place"] == "100-500: 50" and place["cause"] == "low"
+    assert place["search"] == "2 searched, 0 held; best 0.25 at 4.0 m (score)"

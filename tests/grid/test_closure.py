@@ -14,7 +14,8 @@ import pytest
 from jaxslam.datasets.geometry import se2_between, se2_compose, se2_inverse
 from jaxslam.datasets.laser_sim import corridor_world, raycast
 from jaxslam.grid.closure import (
-    POOL, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window, conflict_fraction, window_half,
+    POOL, REFUSED_GAIN, REFUSED_JUMP, REFUSED_SCORE, SHIFT_CELLS, TURN_STEP, candidate_scores, coarse_window,
+    conflict_fraction, window_half,
 )
 from jaxslam.grid.undone_closures import judge_at_end, put_back, reported_undo, take_back
 from jaxslam.grid.map import GridSpec, dense_reader
@@ -353,12 +354,12 @@ def test_a_candidate_is_held_until_confirmed(sim, tracked):
     with jax.enable_x64(True):
         true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
         wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
-        motion, _, _, closed, _, held, _ = track(state, wrong, scans[3], confirm, config)
+        motion, _, _, closed, _, held, *_ = track(state, wrong, scans[3], confirm, config)
         plain = track(state, wrong, scans[3], with_values(confirm, {"closure.trigger": np.float64(0.0)}), config)
         assert not bool(closed) and float(held.held_scans) == 1.0
         np.testing.assert_array_equal(np.asarray(motion), np.asarray(plain[0]))
         # The next scan (here the same one again) follows and closes.
-        motion2, _, _, closed2, _, held2, _ = track(state._replace(closure=held), wrong, scans[3], confirm, config)
+        motion2, _, _, closed2, _, held2, *_ = track(state._replace(closure=held), wrong, scans[3], confirm, config)
         error2 = se2_between(true_step[None], np.asarray(motion2)[None])[0]
         assert bool(closed2) and not np.any(np.asarray(held2.held)) and float(held2.held_scans) == 0.0, held2
         assert float(held2.travelled) == 0.0
@@ -389,6 +390,40 @@ def test_a_jump_beyond_the_drift_since_the_last_closure_is_refused(sim, tracked)
         closed = track(fresh, wrong, scans[3], loose, config)
     assert not bool(refused[3]) and float(refused[5].travelled) == pytest.approx(step)
     assert bool(closed[3]) and float(closed[5].travelled) == 0.0
+
+
+def test_the_search_record_names_the_candidate_and_the_tests_that_refused_it(sim, tracked):
+    """``track``'s last output (``Info.track_search``): the 1.6 m candidate, with its
+    score and distance from the local match, 0 refusals where it closes; the jump bound
+    right after a closure (``REFUSED_JUMP``), a minimum over its score
+    (``REFUSED_SCORE``) and a gain over it (``REFUSED_GAIN``) each set their own bit; a
+    held candidate's climb is kind 2; a scan whose local match is good records zeros."""
+    track, state, scans, params, config = tracked
+    at_once = with_values(params, {"closure.confirm": np.float64(1.0)})
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        closed = track(state, wrong, scans[3], at_once, config)
+        local = track(state, wrong, scans[3], with_values(at_once, {"closure.trigger": np.float64(0.0)}), config)
+        after = track(state._replace(closure=_memory()), wrong, scans[3], at_once, config)
+        low = track(state, wrong, scans[3], with_values(at_once, {"closure.min_score": np.float64(0.99)}), config)
+        flat = track(state, wrong, scans[3], with_values(at_once, {"closure.gain": np.float64(50.0)}), config)
+        confirm = with_values(params, {"closure.confirm": np.float64(2.0)})
+        held = track(state, wrong, scans[3], confirm, config)
+        followed = track(state._replace(closure=held[5]), wrong, scans[3], confirm, config)
+        good = track(state, true_step, scans[3], at_once, config)
+    kind, score, distance, refused = np.asarray(closed[7])
+    assert bool(closed[3]) and kind == 1 and refused == 0
+    assert score == pytest.approx(float(closed[1]))
+    # the distance is the candidate's from the local match (the search's start)
+    moved = se2_between(np.asarray(local[0])[None], np.asarray(closed[0])[None])[0]
+    assert distance > 1.0 and distance == pytest.approx(np.hypot(*moved[:2]), abs=0.05)
+    assert not bool(after[3]) and tuple(np.asarray(after[7])[[0, 3]]) == (1, REFUSED_JUMP)
+    assert not bool(low[3]) and tuple(np.asarray(low[7])[[0, 3]]) == (1, REFUSED_SCORE)
+    assert not bool(flat[3]) and tuple(np.asarray(flat[7])[[0, 3]]) == (1, REFUSED_GAIN)
+    assert not bool(held[3]) and tuple(np.asarray(held[7])[[0, 3]]) == (1, 0)
+    assert bool(followed[3]) and np.asarray(followed[7])[0] == 2
+    assert not bool(good[3]) and not np.any(np.asarray(good[7]))
 
 
 def _memory(map_bound: bool = False, **fields) -> ClosureState:
