@@ -279,6 +279,29 @@ def tail_places_table() -> str:
                    "went wrong first (cause)"], rows)
 
 
+REFUSAL_LOGS = [("MIT Killian", "closure_diagnostics_refusals_killian.json"),
+                ("infinite corridor (high)", "closure_diagnostics_refusals_corridor.json"),
+                ("Freiburg campus (high)", "closure_diagnostics_refusals_campus.json"),
+                ("Orebro (high)", "closure_diagnostics_refusals_orebro.json")]
+"""The runs of the tail table with the search's record (``Info.track_search``), per log."""
+
+
+def tail_refusals_table(logs: list[tuple[str, str]] = REFUSAL_LOGS) -> str:
+    """Per run of the tail (``logs``: rows as :data:`REFUSAL_LOGS`), where it went wrong
+    first, the decision there (``closure_diagnostics.cause``, split by what the search
+    did where no right closure came) and the search's record of that stretch
+    (``closure_diagnostics.search_summary``)."""
+    rows = []
+    for log, name in logs:
+        data = load(name)
+        labels = data["tail_causes"]["labels"]
+        for row in sorted(data["bad_places"], key=lambda r: _seed(r["run"])):
+            rows.append([log, str(_seed(row["run"])), f"{row['mean_m']:.3f}", row.get("first_place") or "",
+                         labels.get(row["cause"], "") if row.get("cause") else "", row.get("search", "")])
+    return _table(["log", "seed", "mean error, m", "went wrong first", "cause",
+                   "the search there: scans searched, held; the best candidate that moves the pose"], rows)
+
+
 def _seed(run: str) -> int:
     """The seed of a saved run's name (``mit-killian_srupf-gm_s7``, ``..._s7_split32``)."""
     return int(re.search(r"_s(\d+)(_|$)", run).group(1))
@@ -649,6 +672,7 @@ TABLES = {
     "trigger_ratio": lambda: paired_table("robustness_trigger_ratio.json", ("r0", "fixed at 0.25"), ("r70", "ratio 0.7"),
                                              ("r80", "ratio 0.8")),
     "tail_causes_trigger_ratio": lambda: tail_causes_table(TRIGGER_RATIO_CAUSE_LOGS),
+    "tail_refusals": tail_refusals_table,
 }
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
@@ -667,7 +691,8 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "trigger": "robustness_trigger.json",
             "tail_causes_trigger": lambda: tail_causes_machines(TRIGGER_CAUSE_LOGS),
             "trigger_ratio": "robustness_trigger_ratio.json",
-            "tail_causes_trigger_ratio": lambda: tail_causes_machines(TRIGGER_RATIO_CAUSE_LOGS)}
+            "tail_causes_trigger_ratio": lambda: tail_causes_machines(TRIGGER_RATIO_CAUSE_LOGS),
+            "tail_refusals": "closure_diagnostics_refusals_killian.json"}
 
 
 def write_all(folder: Path = GENERATED) -> list[Path]:

@@ -324,8 +324,9 @@ def search_summary(search: np.ndarray) -> str:
 def refusal(search: np.ndarray) -> str:
     """Why a stretch without a right closure had none, from ``Info.track_search`` of its
     scans (:func:`jaxslam.grid.closure.closure_outcome`): ``unsearched`` where no scan
-    ran the search, ``unconfirmed`` where a candidate won a scan (and was held) but
-    never ``closure.confirm`` in a row, and otherwise the first test, in the order
+    ran the search, ``unconfirmed`` where a candidate that moves the pose
+    (:data:`MOVE_M`) won a scan (and was held) but never ``closure.confirm`` in a row,
+    and otherwise the first test, in the order
     score, gain, jump bound, alias, that refused the best candidate the search found
     there (:func:`best_candidate`)."""
     from jaxslam.grid.closure import REFUSED_ALIAS, REFUSED_GAIN, REFUSED_JUMP, REFUSED_SCORE
@@ -334,7 +335,8 @@ def refusal(search: np.ndarray) -> str:
     searched = search[:, 0] == 1
     if not searched.any():
         return "unsearched"
-    if np.any(search[:, 0] == 2) or np.any(searched & (search[:, 3] == 0)):
+    moving = search[:, 2] >= MOVE_M
+    if np.any(moving & ((search[:, 0] == 2) | (searched & (search[:, 3] == 0)))):
         return "unconfirmed"
     bits = int(best_candidate(search)[3])
     for bit, key in ((REFUSED_SCORE, "low"), (REFUSED_GAIN, "flat"), (REFUSED_JUMP, "far"), (REFUSED_ALIAS, "alias")):

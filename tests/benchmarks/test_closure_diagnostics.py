@@ -238,6 +238,8 @@ def _search(*rows) -> np.ndarray:
     (_search([1, 0.2, 0.1, SCORE]), "low"),  # none moves the pose: the best of all
     (_search([1, 0.45, 4.0, 0], [1, 0.4, 4.0, GAIN]), "unconfirmed"),  # won a scan, lost the next
     (_search([1, 0.45, 4.0, 0], [2, 0.4, 4.0, GAIN]), "unconfirmed"),
+    # a win 0.1 m away is the local match climbed further, not a closure held
+    (_search([1, 0.45, 0.1, 0], [2, 0.4, 0.1, GAIN], [1, 0.3, 4.0, SCORE]), "low"),
 ])
 def test_no_right_closure_is_explained_by_what_the_search_did_there(search, expected):
     """With the stretch's ``Info.track_search`` a stretch without a right closure names
