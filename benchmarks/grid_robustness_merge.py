@@ -20,7 +20,9 @@ are listed, not plotted).
 The last form takes a variant's runs under another name: a variant whose settings
 have since become the defaults (``l05`` ran ``linear_update`` 0.5 before that was
 the default) counts as the defaults' run. Each renamed run keeps its old name in
-``renamed_from``, and the merged JSON lists the sources as given.
+``renamed_from``, and the merged JSON lists the sources as given. ``--common`` keeps
+only the runs that compare arms: the logs and code splits two or more filters ran, on
+the seeds all of them ran (:func:`common`).
 """
 
 from __future__ import annotations
@@ -95,6 +97,16 @@ def merge(sources: list[str | Path]) -> tuple[list[dict], list[str]]:
     rows = sorted(by_key.values(), key=lambda r: (r["log"], order.get(r["filter"].split("[")[0], 99),
                                                   r.get("code_split") or 0, r["seed"]))
     return rows, replaced
+
+
+def common(rows: list[dict]) -> list[dict]:
+    """The runs of ``rows`` that compare filters: of each log and code split that two or
+    more filters ran, the seeds every one of them ran (``--common``)."""
+    ran: dict[tuple, dict[str, set]] = {}
+    for row in rows:
+        ran.setdefault((row["log"], row.get("code_split")), {}).setdefault(row["filter"], set()).add(row["seed"])
+    keep = {key: set.intersection(*by_filter.values()) for key, by_filter in ran.items() if len(by_filter) > 1}
+    return [row for row in rows if row["seed"] in keep.get((row["log"], row.get("code_split")), ())]
 
 
 def series(rows: list[dict]) -> list[tuple[str, int | None]]:
@@ -180,8 +192,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--markdown", action="store_true",
                         help="also print a Markdown table: per log and filter the mean of the seeds' means "
                              "(worst seed), the worst relation, relations over 0.5 m and [seeds]")
+    parser.add_argument("--common", action="store_true",
+                        help="keep only the logs and code splits that two or more filters ran, on the seeds "
+                             "all of them ran")
     args = parser.parse_args(argv)
     rows, replaced = merge(args.files)
+    if args.common:
+        rows = common(rows)
     print_table(rows, ["log", "seed", "filter", "mean_m", "median_m", "max_m", "over_0.5m", "n_relations",
                        "wall_s", "source"])
     print()

@@ -293,7 +293,9 @@ class ClosureParams(NamedTuple):
     :func:`jaxslam.grid.undone_closures.judge_at_end`). Until the first closure is
     taken, ``first_drift`` (m per m, the tracking's own drift; 0: off) bounds the jump
     more tightly, by that times the odometry distance since the start, or ``jump``
-    where that is more (:func:`jaxslam.grid.closure.closure_outcome`).
+    where that is more (:func:`jaxslam.grid.closure.closure_outcome`). A held
+    candidate's later scans need only ``confirm_gain`` times the match where that is
+    positive (0: ``gain`` on every scan).
     """
 
     trigger: Array | float = 0.25
@@ -311,6 +313,7 @@ class ClosureParams(NamedTuple):
     undo_end: Array | float = 0.2
     first_drift: Array | float = 0.02
     trigger_ratio: Array | float = 0.8
+    confirm_gain: Array | float = 0.0
 
 
 class WeightParams(NamedTuple):
@@ -645,6 +648,8 @@ PARAMETER_SPECS: dict[str, ParamSpec] = {
     "closure.min_score": fraction("a closure's pose must score at least this"),
     "closure.gain": at_least(0.0, "1", "a closure's pose must also score this many times the tracking match"),
     "closure.confirm": at_least(1.0, "scans", "scans in a row a closure must be confirmed on"),
+    "closure.confirm_gain": at_least(0.0, "1", "the gain over the tracking match on a held candidate's scans after "
+                                     "the first; 0: closure.gain"),
     "closure.drift": at_least(0.0, "m/m", "a closure moves the match by at most this times the odometry distance"),
     "closure.reach_rate": at_least(0.0, "m/m", "the search's reach per metre of odometry since the last closure"),
     "closure.jump": at_least(0.0, "m", "a closure moves the match by at most this much or closure.drift times the odometry distance, whichever is more"),

@@ -111,3 +111,16 @@ def test_every_variant_and_code_split_is_a_series_of_the_plot():
                                 ("srupf-gm[first]", None), ("srupf-gm", None)]]
     assert merge_module.series(rows) == [("srupf-gm", None), ("srupf-gm[first]", None), ("srupf-gm[first]", 32),
                                          ("srupf-gm[off]", None), ("gmapping-cpp", None)]
+
+
+def test_common_keeps_the_logs_and_seeds_every_arm_ran():
+    """Two arms on log a (seeds 0-2 and 0-1), one arm on log b, the first arm again under
+    code split 32: only log a's seeds 0 and 1 compare the arms."""
+    def run(log, filter_, seed, split=None):
+        return {"log": log, "filter": filter_, "seed": seed, **({} if split is None else {"code_split": split})}
+
+    rows = ([run("a", "srupf-gm[x]", s) for s in (0, 1, 2)] + [run("a", "srupf-gm[y]", s) for s in (0, 1)]
+            + [run("b", "srupf-gm[x]", 0), run("a", "srupf-gm[x]", 0, 32)])
+    kept = merge_module.common(rows)
+    assert sorted((r["log"], r["filter"], r["seed"]) for r in kept) == [
+        ("a", "srupf-gm[x]", 0), ("a", "srupf-gm[x]", 1), ("a", "srupf-gm[y]", 0), ("a", "srupf-gm[y]", 1)]

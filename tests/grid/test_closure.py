@@ -373,6 +373,28 @@ def test_a_candidate_is_held_until_confirmed(sim, tracked):
     np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(fresh[0]))
 
 
+def test_a_held_candidate_is_confirmed_with_its_own_gain(sim, tracked):
+    """``closure.confirm_gain``: the first scan needs ``closure.gain``; a held
+    candidate's next scan, with a gain no match can reach, is refused for it
+    (``REFUSED_GAIN``) unless ``confirm_gain`` (1) applies to it; the first scan is
+    refused for that gain whatever ``confirm_gain`` says."""
+    track, state, scans, params, config = tracked
+    confirm = with_values(params, {"closure.confirm": np.float64(2.0)})
+    unreachable = with_values(confirm, {"closure.gain": np.float64(1e6)})
+    own = with_values(unreachable, {"closure.confirm_gain": np.float64(1.0)})
+    with jax.enable_x64(True):
+        true_step = se2_between(sim.true_poses[0][None], sim.true_poses[3][None])[0]
+        wrong = se2_compose(true_step[None], np.array([[1.2, -1.05, math.radians(5.0)]]))[0]
+        held = track(state, wrong, scans[3], confirm, config)[5]
+        lost = track(state._replace(closure=held), wrong, scans[3], unreachable, config)
+        kept = track(state._replace(closure=held), wrong, scans[3], own, config)
+        first = track(state, wrong, scans[3], own, config)
+    assert float(held.held_scans) == 1.0
+    assert not bool(lost[3]) and tuple(np.asarray(lost[7])[[0, 3]]) == (2, REFUSED_GAIN)
+    assert bool(kept[3]) and tuple(np.asarray(kept[7])[[0, 3]]) == (2, 0)
+    assert not bool(first[3]) and tuple(np.asarray(first[7])[[0, 3]]) == (1, REFUSED_GAIN)
+
+
 def test_a_jump_beyond_the_drift_since_the_last_closure_is_refused(sim, tracked):
     """Right after a closure (no odometry since) the same 1.6 m closure is refused: the
     jump bound is ``closure_jump`` 0.5 m plus nothing travelled. With a drift bound

@@ -18,7 +18,7 @@ from jaxslam.grid.types import (
 def test_every_leaf_is_an_array_of_the_dtype_and_has_a_path():
     params = GridSlamParams.create(np.linspace(-1.0, 1.0, 7), (0.1, 0.0, 0.0), dtype=np.float64)
     leaves = jax.tree_util.tree_leaves(params)
-    assert len(leaves) == len(param_paths()) == 59
+    assert len(leaves) == len(param_paths()) == 60
     assert all(isinstance(leaf, np.ndarray) and leaf.dtype == np.float64 for leaf in leaves)
     assert get_path(params, "sensor.beam_angles").shape == (7,)
     assert get_path(params, "matcher.ellipse_floor").shape == (3,)
