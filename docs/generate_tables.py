@@ -673,6 +673,8 @@ TABLES = {
                                              ("r80", "ratio 0.8")),
     "tail_causes_trigger_ratio": lambda: tail_causes_table(TRIGGER_RATIO_CAUSE_LOGS),
     "tail_refusals": tail_refusals_table,
+    "confirm_gain": lambda: paired_table("robustness_confirm_gain.json", ("r80", "the defaults"),
+                                         ("cg12", "confirm_gain 1.2")),
 }
 MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "landmark": "erb_particles.json",
             "scale": "grid_scale.json", "feature_cost": "feature_cost_intel.json",
@@ -692,7 +694,8 @@ MACHINES = {"robustness": "robustness_suite.json", "speed": "end_to_end.json", "
             "tail_causes_trigger": lambda: tail_causes_machines(TRIGGER_CAUSE_LOGS),
             "trigger_ratio": "robustness_trigger_ratio.json",
             "tail_causes_trigger_ratio": lambda: tail_causes_machines(TRIGGER_RATIO_CAUSE_LOGS),
-            "tail_refusals": "closure_diagnostics_refusals_killian.json"}
+            "tail_refusals": "closure_diagnostics_refusals_killian.json",
+            "confirm_gain": "robustness_confirm_gain.json"}
 
 
 def write_all(folder: Path = GENERATED) -> list[Path]:
