@@ -302,21 +302,26 @@ def best_candidate(search: np.ndarray) -> np.ndarray | None:
     return search[pick[np.argmax(search[pick, 1])]]
 
 
-def search_summary(search: np.ndarray) -> str:
-    """``Info.track_search`` of a stretch's scans in words: how many scans searched and
-    climbed a held candidate, and the best candidate the search found, with its score
-    (:func:`best_candidate`) with its score (fraction of the matched beams), distance
-    from the local match and the tests that refused it (:func:`refusal`)."""
+def refusal_tests() -> tuple[tuple[int, str, str], ...]:
+    """The refusal bits of ``Info.track_search`` in the order the tests are judged:
+    ``(bit, test, cause)``, the cause a key of :data:`CAUSES`."""
     from jaxslam.grid.closure import REFUSED_ALIAS, REFUSED_GAIN, REFUSED_JUMP, REFUSED_SCORE
 
+    return ((REFUSED_SCORE, "score", "low"), (REFUSED_GAIN, "gain", "flat"), (REFUSED_JUMP, "jump", "far"),
+            (REFUSED_ALIAS, "alias", "alias"))
+
+
+def search_summary(search: np.ndarray) -> str:
+    """``Info.track_search`` of a stretch's scans in words: how many scans searched and
+    climbed a held candidate, and the best candidate the search found
+    (:func:`best_candidate`) with its score (fraction of the matched beams), distance
+    from the local match and the tests that refused it (:func:`refusal_tests`)."""
     search = np.asarray(search, np.float64).reshape(-1, 4)
     searched, held = search[:, 0] == 1, search[:, 0] == 2
     text = f"{int(searched.sum())} searched, {int(held.sum())} held"
     best = best_candidate(search)
     if best is not None:
-        bits = int(best[3])
-        names = [name for bit, name in ((REFUSED_SCORE, "score"), (REFUSED_GAIN, "gain"), (REFUSED_JUMP, "jump"),
-                                        (REFUSED_ALIAS, "alias")) if bits & bit]
+        names = [name for bit, name, _ in refusal_tests() if int(best[3]) & bit]
         text += f"; best {best[1]:.2f} at {best[2]:.1f} m" + (f" ({'+'.join(names)})" if names else " (won)")
     return text
 
@@ -329,8 +334,6 @@ def refusal(search: np.ndarray) -> str:
     and otherwise the first test, in the order
     score, gain, jump bound, alias, that refused the best candidate the search found
     there (:func:`best_candidate`)."""
-    from jaxslam.grid.closure import REFUSED_ALIAS, REFUSED_GAIN, REFUSED_JUMP, REFUSED_SCORE
-
     search = np.asarray(search, np.float64).reshape(-1, 4)
     searched = search[:, 0] == 1
     if not searched.any():
@@ -339,10 +342,7 @@ def refusal(search: np.ndarray) -> str:
     if np.any(moving & ((search[:, 0] == 2) | (searched & (search[:, 3] == 0)))):
         return "unconfirmed"
     bits = int(best_candidate(search)[3])
-    for bit, key in ((REFUSED_SCORE, "low"), (REFUSED_GAIN, "flat"), (REFUSED_JUMP, "far"), (REFUSED_ALIAS, "alias")):
-        if bits & bit:
-            return key
-    return "unconfirmed"
+    return next((key for bit, _, key in refusal_tests() if bits & bit), "unconfirmed")
 
 
 FIRST_SHARE = 0.5

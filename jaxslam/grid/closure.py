@@ -50,12 +50,13 @@ match moved by the held correction) and must pass the same tests (with
 1.2 every MIT Killian seed of 20 scores under 0.3 m, but the perturbed corridor's
 aliases close and its worst seed goes from 0.57 to 1.56 m; ``docs/benchmarks.md``,
 "Confirmation at a lower gain"). After ``closure.confirm`` (3) wins in a row the
-candidate replaces the local match; one loss drops it (:func:`closure_phases`). The bound on the jump is the drift the tracking can
-have gathered since the last closure, :math:`\beta` = 0.5 m per metre of odometry,
-and at least :math:`j` = 0.5 m: right after a closure the robot is on the old map,
-so a second jump of metres within a few metres of travel is an alias (a corridor's
-doors, repeated every few metres), not drift. The tracking then keeps of the
-closure's position correction only the part the scan constrains, as for any match
+candidate replaces the local match; one loss drops it (:func:`closure_phases`). The
+bound on the jump is the drift the tracking can have gathered since the last closure,
+:math:`\beta` = 0.5 m per metre of odometry, and at least :math:`j` = 0.5 m: right
+after a closure the robot is on the old map, so a second jump of metres within a few
+metres of travel is an alias (a corridor's doors, repeated every few metres), not
+drift. The tracking then keeps of the closure's position correction only the part the
+scan constrains, as for any match
 (:func:`jaxslam.grid.tracking.constrained_pose`).
 
 **The trigger** (``closure.trigger``, 0.25, raised by ``closure.trigger_ratio``, 0.8).
